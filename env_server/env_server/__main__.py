@@ -1,0 +1,93 @@
+"""`python -m env_server`: serve the registry over gRPC, or `--list` it.
+
+stdout carries exactly one line, `LISTENING <host>:<port>`, once the port is bound
+(port 0 lets the OS choose); everything else is logged to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+
+from env_server.registry import Registry, RegistryError
+from env_server.task import Objective
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="env-server", description=__doc__.splitlines()[0])
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=0, help="port to bind; 0 = chosen by the OS (default)")
+    p.add_argument("--max-sessions", type=int, default=64, help="open sessions allowed at once (default 64)")
+    p.add_argument("--max-message-mb", type=float, default=64, help="largest request/response in MiB (default 64)")
+    p.add_argument("--session-lease", type=float, default=120.0, help="seconds before an unused session is closed (default 120)")
+    p.add_argument("--list", action="store_true", help="print every env id with its objectives and exit")
+    p.add_argument("--log-level", default="INFO", help="logging level for stderr (default INFO)")
+    return p
+
+
+def _fmt_objective(o: Objective) -> str:
+    return f"    {o.name}: {o.description} [{o.min:g}, {o.max:g}]"
+
+
+def print_list(registry: Registry, out=sys.stdout) -> None:
+    """Every env id (shipped, entry points, adapter patterns) with description and objectives."""
+    for entry in registry.entries():
+        print(f"{entry.env_id}  {entry.description}", file=out)
+        for o in entry.objectives:
+            print(_fmt_objective(o), file=out)
+    for prefix in registry.prefixes:
+        print(f"{prefix.pattern}  {prefix.task_class.description}", file=out)
+        if prefix.task_class.objectives:
+            for o in prefix.task_class.objectives:
+                print(_fmt_objective(o), file=out)
+        else:
+            print("    objectives depend on the env (see its spec)", file=out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(
+        stream=sys.stderr, level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    try:
+        registry = Registry()
+    except RegistryError as exc:
+        print(f"env-server: {exc}", file=sys.stderr)
+        return 2
+    if args.list:
+        print_list(registry)
+        return 0
+    if args.max_sessions < 1 or args.max_message_mb <= 0 or args.session_lease <= 0:
+        print(
+            "env-server: expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0; got "
+            f"{args.max_sessions}, {args.max_message_mb}, {args.session_lease}",
+            file=sys.stderr,
+        )
+        return 2
+
+    from env_server.server import serve  # grpc is only needed when serving
+
+    async def run() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, stop.set)
+        await serve(
+            registry,
+            host=args.host,
+            port=args.port,
+            max_sessions=args.max_sessions,
+            max_message_bytes=int(args.max_message_mb * 1024 * 1024),
+            lease_seconds=args.session_lease,
+            stop=stop,
+        )
+
+    asyncio.run(run())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,52 @@
+"""Typed errors raised by sessions, the registry and validation.
+
+Nothing below server.py knows about gRPC; each class here names the status code it
+becomes, and server.py maps them in exactly one place. Every message says which
+field was wrong, what was expected and what arrived.
+"""
+
+from __future__ import annotations
+
+
+class EnvServerError(Exception):
+    """Base class; `code` is the name of the gRPC status code this error becomes."""
+
+    code: str = "INTERNAL"
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class InvalidArgument(EnvServerError):
+    """The request is malformed: bad action shape/dtype/value, bad kwargs, bad index."""
+
+    code = "INVALID_ARGUMENT"
+
+
+class NotFound(EnvServerError):
+    """Unknown env id or session id."""
+
+    code = "NOT_FOUND"
+
+
+class FailedPrecondition(EnvServerError):
+    """The request is well formed but the session is not in a state to serve it."""
+
+    code = "FAILED_PRECONDITION"
+
+
+class ResourceExhausted(EnvServerError):
+    """A server limit (open sessions) is reached."""
+
+    code = "RESOURCE_EXHAUSTED"
+
+
+class Internal(EnvServerError):
+    """A bug in a Task or in the server; the server keeps serving other sessions."""
+
+    code = "INTERNAL"
+
+
+class SimulatorError(Internal):
+    """A Task raised while stepping or resetting; names env, session and instance."""

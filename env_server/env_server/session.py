@@ -1,0 +1,435 @@
+"""A Session: B Task instances stepped as one batch, with autoreset and episode accounting.
+
+This is the whole server minus gRPC: validation, seeding, autoreset, time limits and
+server-side episode returns live here, so bench_inprocess measures exactly what the
+server does per Step except the transport. No grpc imports; errors are errors.py types.
+
+Buffers are preallocated per session and reused by every Step: a StepResult holds
+views into them that stay valid until the session's next call.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import logging
+import math
+import time
+import uuid
+from typing import Any, Mapping, Sequence
+
+import gymnasium
+import numpy as np
+
+from env_server import spaces
+from env_server.errors import EnvServerError, FailedPrecondition, Internal, InvalidArgument, SimulatorError
+from env_server.registry import EnvEntry, construct
+from env_server.task import Objective, Task
+
+log = logging.getLogger(__name__)
+
+DEFAULT_DISCOUNT = 0.99
+
+
+class Autoreset(enum.IntEnum):
+    """What happens to an instance whose episode ended (numbers match the proto enum)."""
+
+    SAME_STEP = 1
+    NEXT_STEP = 2
+    DISABLED = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class SessionSpec:
+    """Everything a client needs to know about a session (the EnvSpec)."""
+
+    env_id: str
+    num_envs: int
+    observation_space: gymnasium.spaces.Space
+    action_space: gymnasium.spaces.Space
+    objectives: tuple[Objective, ...]
+    max_episode_steps: int  # 0 = no time limit
+    autoreset: Autoreset
+    discount: float
+    info_keys: tuple[str, ...]  # every key the task can report
+
+
+@dataclasses.dataclass
+class EpisodeEnd:
+    """An episode that ended in a Step, with its server-side returns."""
+
+    env_index: int
+    episode_return: np.ndarray  # float64 [K]
+    discounted_return: np.ndarray  # float64 [K]
+    length: int
+    terminated: bool
+    truncated: bool
+
+
+@dataclasses.dataclass
+class StepResult:
+    """One batch step; arrays are views into session buffers, valid until the next call."""
+
+    observation: list[tuple[spaces.Leaf, np.ndarray]]  # [B, ...] per leaf
+    reward: np.ndarray  # float32 [B, K]
+    terminated: np.ndarray  # bool [B]
+    truncated: np.ndarray  # bool [B]
+    info: list[tuple[str, np.ndarray]]  # [B, ...] per requested key
+    episodes: list[EpisodeEnd]
+    final_observation: list[tuple[spaces.Leaf, np.ndarray]]  # [len(episodes), ...] per leaf
+
+
+@dataclasses.dataclass
+class ResetResult:
+    observation: list[tuple[spaces.Leaf, np.ndarray]]  # [n, ...] per leaf
+    info: list[tuple[str, np.ndarray]]
+
+
+def _info_array(value: Any) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind == "f":
+        return arr.astype(np.float64 if arr.dtype == np.float64 else np.float32)
+    if arr.dtype.kind == "b":
+        return arr.astype(np.bool_)
+    if arr.dtype.kind in "iu":
+        return arr.astype(np.int64)
+    raise TypeError(f"info value of dtype {arr.dtype} is not numeric")
+
+
+class Session:
+    """B instances of one Task, stepped together."""
+
+    def __init__(
+        self,
+        env_id: str,
+        tasks: Sequence[Task],
+        *,
+        seed: int | None = None,
+        autoreset: Autoreset = Autoreset.SAME_STEP,
+        discount: float = DEFAULT_DISCOUNT,
+        info_keys: Sequence[str] = (),
+        session_id: str | None = None,
+    ) -> None:
+        self.id = session_id or uuid.uuid4().hex
+        self.env_id = env_id
+        self._tasks = list(tasks)
+        first = self._tasks[0]
+        b = len(self._tasks)
+        self.objectives: tuple[Objective, ...] = tuple(first.objectives)
+        self._k = len(self.objectives)
+        max_steps = first.max_episode_steps or 0
+        self.spec = SessionSpec(
+            env_id=env_id,
+            num_envs=b,
+            observation_space=first.observation_space,
+            action_space=first.action_space,
+            objectives=self.objectives,
+            max_episode_steps=int(max_steps),
+            autoreset=autoreset,
+            discount=float(discount),
+            info_keys=tuple(first.info_keys),
+        )
+        self._max_steps = int(max_steps)
+        self._discount = float(discount)
+        self._seed = seed
+        self._info_keys = tuple(info_keys)
+        self.validator = spaces.ActionValidator(first.action_space, b)
+        self._discrete = self.validator.discrete
+        if not self._discrete:
+            self._actions = np.zeros(self.validator.shape, self.validator.dtype)
+            self._action_rows = list(self._actions)
+        self.leaves = spaces.leaves(first.observation_space)
+        self._single_leaf = len(self.leaves) == 1 and not self.leaves[0].path
+        self._obs = [np.zeros((b, *leaf.shape), leaf.dtype) for leaf in self.leaves]
+        self._obs_out = list(zip(self.leaves, self._obs))
+        self._reward = np.zeros((b, self._k), np.float32)
+        self._terminated = np.zeros(b, np.bool_)
+        self._truncated = np.zeros(b, np.bool_)
+        self._live = np.ones(b, np.bool_)
+        self._ep_len = np.zeros(b, np.int64)
+        self._ep_ret = np.zeros((b, self._k), np.float64)
+        self._ep_disc = np.zeros((b, self._k), np.float64)
+        self._disc_pow = np.ones(b, np.float64)
+        self._info: dict[str, np.ndarray] = {}
+        self._seeded = np.zeros(b, np.bool_)  # has had its first reset
+        self._needs_reset = np.ones(b, np.bool_)
+        self._ended = np.zeros(b, np.bool_)  # NEXT_STEP / DISABLED: episode over, not yet reset
+        self._failure = ""
+        self.closed = False
+        self.last_used = time.monotonic()
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def num_envs(self) -> int:
+        return len(self._tasks)
+
+    def _write_obs(self, i: int, obs: Any, bufs: Sequence[np.ndarray]) -> None:
+        if self._single_leaf:
+            bufs[0][i] = obs
+            return
+        for leaf, buf in zip(self.leaves, bufs):
+            value = obs
+            for key in leaf.path:
+                value = value[key]
+            buf[i] = value
+
+    def _simulator_error(self, what: str, i: int, exc: BaseException) -> SimulatorError:
+        self._needs_reset[:] = True
+        self._failure = f" (a simulator error in {what} of instance {i} left the session needing a full Reset)"
+        log.error("env %s session %s instance %d: %s raised", self.env_id, self.id, i, what, exc_info=exc)
+        return SimulatorError(f"env {self.env_id} session {self.id} instance {i}: {type(exc).__name__}: {exc}")
+
+    def _reset_instance(self, i: int, seed: int | None) -> tuple[Any, dict[str, Any]]:
+        try:
+            obs, info = self._tasks[i].reset(seed=seed)
+        except EnvServerError:
+            raise
+        except Exception as exc:
+            raise self._simulator_error("reset", i, exc) from exc
+        self._seeded[i] = True
+        self._needs_reset[i] = False
+        self._ended[i] = False
+        self._ep_len[i] = 0
+        self._ep_ret[i] = 0.0
+        self._ep_disc[i] = 0.0
+        self._disc_pow[i] = 1.0
+        return obs, info
+
+    def _collect_info(self, i: int, info: Mapping[str, Any]) -> None:
+        for key in self._info_keys:
+            if key not in info:
+                continue
+            value = _info_array(info[key])
+            buf = self._info.get(key)
+            if buf is None:
+                buf = self._info[key] = np.zeros((self.num_envs, *value.shape), value.dtype)
+            buf[i] = value
+
+    # ------------------------------------------------------------------ API
+    def reset(self, env_indices: Sequence[int] = (), seeds: Sequence[int] = ()) -> ResetResult:
+        """Reset the given instances (all when empty); see ResetRequest for the seed rules."""
+        self.last_used = time.monotonic()
+        b = self.num_envs
+        indices = list(env_indices) if len(env_indices) else list(range(b))
+        for i in indices:
+            if not 0 <= i < b:
+                raise InvalidArgument(f"env_indices: expected 0 <= index < {b} (num_envs={b}), got {i}")
+        if len(set(indices)) != len(indices):
+            raise InvalidArgument(f"env_indices: expected distinct indices, got {indices}")
+        n = len(indices)
+        if len(seeds) == 0:
+            per = [self._seed + i if self._seed is not None and not self._seeded[i] else None for i in indices]
+        elif len(seeds) == 1:
+            per = [int(seeds[0]) + pos for pos in range(n)]
+        elif len(seeds) == n:
+            per = [int(s) for s in seeds]
+        else:
+            raise InvalidArgument(f"seeds: expected 0, 1 or {n} values (one per reset instance), got {len(seeds)}")
+        bufs = [np.zeros((n, *leaf.shape), leaf.dtype) for leaf in self.leaves]
+        infos = []
+        for pos, (i, seed) in enumerate(zip(indices, per)):
+            obs, info = self._reset_instance(i, seed)
+            self._write_obs(pos, obs, bufs)
+            infos.append(info)
+        if not self._needs_reset.any():
+            self._failure = ""
+        info_out = []
+        for key in self._info_keys:
+            values = [_info_array(info[key]) for info in infos if key in info]
+            if not values:
+                continue
+            arr = np.zeros((n, *values[0].shape), values[0].dtype)
+            for pos, info in enumerate(infos):
+                if key in info:
+                    arr[pos] = _info_array(info[key])
+            info_out.append((key, arr))
+        return ResetResult(list(zip(self.leaves, bufs)), info_out)
+
+    def step(self, dtype: str, shape: Sequence[int], data: bytes) -> StepResult:
+        """Validate one action per instance (wire pieces) and step every instance."""
+        self.last_used = time.monotonic()
+        if self._needs_reset.any():
+            raise FailedPrecondition(f"session {self.id}: call Reset before Step{self._failure}")
+        actions = self.validator.decode(dtype, shape, data)
+        return self.step_actions(actions)
+
+    def step_actions(self, actions: np.ndarray) -> StepResult:
+        """Step with an already validated [B, ...] action array."""
+        autoreset = self.spec.autoreset
+        if autoreset is Autoreset.DISABLED and self._ended.any():
+            ended = np.flatnonzero(self._ended).tolist()
+            raise FailedPrecondition(
+                f"session {self.id}: instances {ended} ended their episode; call Reset with "
+                f"env_indices={ended} before Step (autoreset mode DISABLED)"
+            )
+        if self._discrete:
+            rows: Sequence[Any] = actions.tolist()
+        else:
+            np.copyto(self._actions, actions)
+            rows = self._action_rows
+        reward, terminated, truncated, live = self._reward, self._terminated, self._truncated, self._live
+        k = self._k
+        for buf in self._info.values():
+            buf.fill(0)
+        next_step_reset = autoreset is Autoreset.NEXT_STEP and self._ended.any()
+        if next_step_reset:
+            np.logical_not(self._ended, out=live)
+        for i, task in enumerate(self._tasks):
+            if next_step_reset and not live[i]:
+                obs, info = self._reset_instance(i, None)
+                self._write_obs(i, obs, self._obs)
+                reward[i] = 0.0
+                terminated[i] = truncated[i] = False
+                if self._info_keys:
+                    self._collect_info(i, info)
+                continue
+            try:
+                out = task.step(rows[i])
+            except EnvServerError:
+                raise
+            except Exception as exc:
+                raise self._simulator_error("step", i, exc) from exc
+            r = out.reward
+            if getattr(r, "shape", None) != (k,):
+                r = np.asarray(r, np.float32)
+                if r.shape != (k,):
+                    self._needs_reset[:] = True
+                    self._failure = f" (task {type(task).__name__} returned a malformed reward)"
+                    raise Internal(
+                        f"env {self.env_id} session {self.id} instance {i}: task {type(task).__name__} "
+                        f"returned a reward of shape {list(r.shape)}, expected [{k}] (one entry per "
+                        f"objective: {[o.name for o in self.objectives]})"
+                    )
+            reward[i] = r
+            terminated[i] = out.terminated
+            truncated[i] = out.truncated
+            self._write_obs(i, out.observation, self._obs)
+            if self._info_keys:
+                self._collect_info(i, out.info)
+
+        if next_step_reset:
+            self._account(live)
+            terminated &= live
+        else:
+            self._ep_len += 1
+            self._ep_ret += reward
+            self._ep_disc += self._disc_pow[:, None] * reward
+            self._disc_pow *= self._discount
+        if self._max_steps:
+            truncated |= ~terminated & (self._ep_len >= self._max_steps)
+
+        episodes: list[EpisodeEnd] = []
+        finals: list[tuple[spaces.Leaf, np.ndarray]] = []
+        done = terminated | truncated
+        if done.any():
+            ended = np.flatnonzero(done)
+            for i in ended.tolist():
+                episodes.append(
+                    EpisodeEnd(
+                        i,
+                        self._ep_ret[i].copy(),
+                        self._ep_disc[i].copy(),
+                        int(self._ep_len[i]),
+                        bool(terminated[i]),
+                        bool(truncated[i]),
+                    )
+                )
+            if autoreset is Autoreset.SAME_STEP:
+                finals = [(leaf, buf[ended]) for leaf, buf in zip(self.leaves, self._obs)]
+                for i in ended.tolist():
+                    obs, _ = self._reset_instance(i, None)
+                    self._write_obs(i, obs, self._obs)
+            else:
+                self._ended[ended] = True
+        info = [(key, self._info[key]) for key in self._info_keys if key in self._info]
+        return StepResult(self._obs_out, reward, terminated, truncated, info, episodes, finals)
+
+    def _account(self, live: np.ndarray) -> None:
+        self._ep_len[live] += 1
+        r = self._reward[live]
+        self._ep_ret[live] += r
+        self._ep_disc[live] += self._disc_pow[live, None] * r
+        self._disc_pow[live] *= self._discount
+
+    def close(self) -> None:
+        """Close every instance; errors are logged, never raised (closing must not fail)."""
+        if self.closed:
+            return
+        self.closed = True
+        for i, task in enumerate(self._tasks):
+            try:
+                task.close()
+            except Exception:
+                log.exception("env %s session %s instance %d: close raised", self.env_id, self.id, i)
+
+
+def make_session(
+    entry: EnvEntry,
+    num_envs: int,
+    kwargs: Mapping[str, Any],
+    *,
+    seed: int | None = None,
+    autoreset: Autoreset = Autoreset.SAME_STEP,
+    discount: float | None = None,
+    info_keys: Sequence[str] = (),
+    session_id: str | None = None,
+) -> Session:
+    """Validate the request, construct num_envs Tasks and wrap them in a Session.
+
+    May take seconds for heavy simulators; the server runs it in a worker thread.
+    """
+    if num_envs < 1:
+        raise InvalidArgument(f"num_envs: expected >= 1, got {num_envs}")
+    discount = DEFAULT_DISCOUNT if discount is None else float(discount)
+    if not (math.isfinite(discount) and 0.0 <= discount <= 1.0):
+        raise InvalidArgument(f"discount: expected 0 <= discount <= 1, got {discount}")
+    if isinstance(entry.factory, type):
+        # Reject unknown info keys before paying for a simulator load when the class declares them.
+        _check_info_keys(entry.env_id, tuple(entry.factory.info_keys), info_keys)
+    tasks: list[Task] = []
+    try:
+        for _ in range(num_envs):
+            try:
+                task = construct(entry, kwargs)
+            except EnvServerError:
+                raise
+            except Exception as exc:
+                log.error("env %s: constructor raised", entry.env_id, exc_info=exc)
+                raise SimulatorError(f"env {entry.env_id}: constructor raised {type(exc).__name__}: {exc}") from exc
+            tasks.append(task)
+            if len(tasks) == 1:
+                _check_task(entry.env_id, task, info_keys)
+        return Session(
+            entry.env_id,
+            tasks,
+            seed=seed,
+            autoreset=autoreset,
+            discount=discount,
+            info_keys=info_keys,
+            session_id=session_id,
+        )
+    except BaseException:
+        for task in tasks:
+            try:
+                task.close()
+            except Exception:
+                log.exception("env %s: close after a failed Make raised", entry.env_id)
+        raise
+
+
+def _check_info_keys(env_id: str, available: tuple[str, ...], info_keys: Sequence[str]) -> None:
+    unknown = [key for key in info_keys if key not in available]
+    if unknown:
+        raise InvalidArgument(f"info_keys: env '{env_id}' cannot report {unknown}; available: {list(available)}")
+
+
+def _check_task(env_id: str, task: Task, info_keys: Sequence[str]) -> None:
+    _check_info_keys(env_id, tuple(task.info_keys), info_keys)
+    names = [o.name for o in task.objectives]
+    if not names or len(set(names)) != len(names):
+        raise Internal(f"env '{env_id}': objectives must be non-empty with unique names, got {names}")
+    try:
+        spaces.space_to_spec(task.observation_space)
+        spaces.leaf_dtype(task.action_space)
+    except TypeError as exc:
+        raise InvalidArgument(f"env_id: env '{env_id}' cannot be served: {exc}") from exc

@@ -1,0 +1,183 @@
+"""Gymnasium spaces <-> plain spec dicts, observation leaves, and action validation.
+
+No gRPC here: server.py turns the spec dicts into protobuf and client.py turns them
+back into gymnasium spaces, so both sides share one definition of the mapping.
+
+Spec dicts (one key each):
+    {"box": {"dtype": "float32", "shape": [21], "low": [-1.0], "high": [1.0]}}
+    {"discrete": {"n": 4, "start": 0}}
+    {"dict": [("joint", <spec>), ("target", <spec>)]}
+Box low/high hold one value when every element shares it, else prod(shape) values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Sequence
+
+import gymnasium
+import numpy as np
+
+from env_server.errors import InvalidArgument
+
+#: The dtypes the wire format carries, by numpy name.
+SUPPORTED_DTYPES: tuple[str, ...] = ("float32", "float64", "int32", "int64", "uint8", "bool")
+
+
+@dataclasses.dataclass(frozen=True)
+class Leaf:
+    """One array of a (possibly nested) observation: its wire name and per-instance layout."""
+
+    name: str  # "" for a non-Dict space, nested Dict keys joined with "."
+    path: tuple[str, ...]  # keys to walk from the observation to this leaf
+    dtype: np.dtype
+    shape: tuple[int, ...]
+
+
+def leaf_dtype(space: gymnasium.spaces.Space) -> np.dtype:
+    """The dtype a Box/Discrete value travels as (Discrete always as int64)."""
+    if isinstance(space, gymnasium.spaces.Discrete):
+        return np.dtype(np.int64)
+    if isinstance(space, gymnasium.spaces.Box):
+        dtype = np.dtype(space.dtype)
+        if dtype.name not in SUPPORTED_DTYPES:
+            raise TypeError(f"Box dtype {dtype.name} is not supported; expected one of {SUPPORTED_DTYPES}")
+        return dtype
+    raise TypeError(f"space {space} is not supported here; expected Box or Discrete")
+
+
+def leaves(space: gymnasium.spaces.Space, _prefix: tuple[str, ...] = ()) -> list[Leaf]:
+    """Flatten a Box/Discrete/Dict tree into leaves in Dict order."""
+    if isinstance(space, gymnasium.spaces.Dict):
+        out: list[Leaf] = []
+        for key, sub in space.spaces.items():
+            out.extend(leaves(sub, _prefix + (str(key),)))
+        return out
+    shape = () if isinstance(space, gymnasium.spaces.Discrete) else tuple(int(d) for d in space.shape)
+    return [Leaf(".".join(_prefix), _prefix, leaf_dtype(space), shape)]
+
+
+def _bound_list(values: np.ndarray) -> list[float]:
+    flat = np.asarray(values, dtype=np.float64).reshape(-1)
+    if flat.size and np.all(flat == flat[0]):
+        return [float(flat[0])]
+    return [float(v) for v in flat]
+
+
+def space_to_spec(space: gymnasium.spaces.Space) -> dict[str, Any]:
+    """Describe a gymnasium space as a spec dict (see module docstring)."""
+    if isinstance(space, gymnasium.spaces.Dict):
+        return {"dict": [(str(k), space_to_spec(s)) for k, s in space.spaces.items()]}
+    if isinstance(space, gymnasium.spaces.Discrete):
+        return {"discrete": {"n": int(space.n), "start": int(space.start)}}
+    if isinstance(space, gymnasium.spaces.Box):
+        return {
+            "box": {
+                "dtype": leaf_dtype(space).name,
+                "shape": [int(d) for d in space.shape],
+                "low": _bound_list(space.low),
+                "high": _bound_list(space.high),
+            }
+        }
+    raise TypeError(f"space {space} is not supported; expected Box, Discrete or Dict")
+
+
+def spec_to_space(spec: dict[str, Any]) -> gymnasium.spaces.Space:
+    """Rebuild a gymnasium space from a spec dict."""
+    if "dict" in spec:
+        # A sequence of pairs keeps the wire order (a plain dict would be re-sorted).
+        return gymnasium.spaces.Dict([(k, spec_to_space(s)) for k, s in spec["dict"]])
+    if "discrete" in spec:
+        return gymnasium.spaces.Discrete(spec["discrete"]["n"], start=spec["discrete"]["start"])
+    box = spec["box"]
+    dtype = np.dtype(box["dtype"])
+    shape = tuple(box["shape"])
+
+    def bound(values: Sequence[float]) -> np.ndarray:
+        arr = np.asarray(values, dtype=np.float64)
+        arr = np.full(shape, arr[0]) if arr.size == 1 else arr.reshape(shape)
+        if dtype.kind in "iub":
+            info = np.iinfo(dtype) if dtype.kind != "b" else None
+            lo, hi = (0, 1) if info is None else (info.min, info.max)
+            arr = np.clip(np.nan_to_num(arr, posinf=hi, neginf=lo), lo, hi)
+        return arr.astype(dtype)
+
+    return gymnasium.spaces.Box(bound(box["low"]), bound(box["high"]), shape=shape, dtype=dtype)
+
+
+def _fmt_index(index: tuple[int, ...]) -> str:
+    return "(" + ", ".join(str(int(i)) for i in index) + ("," if len(index) == 1 else "") + ")"
+
+
+class ActionValidator:
+    """Checks a batch of actions [B, *action_shape] against one action space, vectorised.
+
+    Built once per session so the per-step cost is one dtype compare, one shape compare
+    and one or two numpy reductions over the whole batch.
+    """
+
+    def __init__(self, space: gymnasium.spaces.Space, num_envs: int) -> None:
+        self.space = space
+        self.num_envs = num_envs
+        self.dtype = leaf_dtype(space)
+        self.discrete = isinstance(space, gymnasium.spaces.Discrete)
+        item_shape = () if self.discrete else tuple(int(d) for d in space.shape)
+        self.shape = (num_envs, *item_shape)
+        self.nbytes = math.prod(self.shape) * self.dtype.itemsize
+        if self.discrete:
+            self.low = np.int64(space.start)
+            self.high = np.int64(space.start + space.n - 1)
+            self._check_bounds = True
+            self._check_finite = False
+        else:
+            self.low = np.asarray(space.low)
+            self.high = np.asarray(space.high)
+            self._check_finite = self.dtype.kind == "f"
+            self._check_bounds = bool(np.isfinite(self.low).any() or np.isfinite(self.high).any())
+
+    def decode(self, dtype: str, shape: Sequence[int], data: bytes) -> np.ndarray:
+        """Validate wire pieces and return a read-only [B, ...] view of `data`.
+
+        Raises InvalidArgument naming the field, the expectation and what arrived.
+        """
+        if dtype != self.dtype.name:
+            raise InvalidArgument(f"action: expected dtype {self.dtype.name}, got {dtype}")
+        shape = tuple(int(d) for d in shape)
+        if shape != self.shape:
+            raise InvalidArgument(
+                f"action: expected shape {list(self.shape)} (num_envs={self.num_envs}, "
+                f"action space {self.space}), got {list(shape)}"
+            )
+        if len(data) != self.nbytes:
+            raise InvalidArgument(
+                f"action: expected {self.nbytes} data bytes for shape {list(self.shape)} "
+                f"{self.dtype.name}, got {len(data)}"
+            )
+        actions = np.frombuffer(data, dtype=self.dtype).reshape(self.shape)
+        self.check_values(actions)
+        return actions
+
+    def check_values(self, actions: np.ndarray) -> None:
+        """NaN/inf and bounds, one pass each over the batch; diagnostics only on failure."""
+        if self._check_finite and not np.isfinite(actions).all():
+            index = tuple(np.argwhere(~np.isfinite(actions))[0])
+            raise InvalidArgument(
+                f"action: env {index[0]} element {_fmt_index(index[1:])} is {actions[index]}; "
+                "expected finite values"
+            )
+        if self._check_bounds and not ((actions >= self.low) & (actions <= self.high)).all():
+            bad = (actions < self.low) | (actions > self.high)
+            index = tuple(np.argwhere(bad)[0])
+            value = actions[index]
+            if self.discrete:
+                raise InvalidArgument(
+                    f"action: env {index[0]} = {value} is outside {self.space}: "
+                    f"expected {self.low} <= action <= {self.high}"
+                )
+            low = np.broadcast_to(self.low, self.shape[1:])[index[1:]]
+            high = np.broadcast_to(self.high, self.shape[1:])[index[1:]]
+            raise InvalidArgument(
+                f"action: env {index[0]} element {_fmt_index(index[1:])} = {value} is outside "
+                f"the Box bounds: expected {low} <= action <= {high}"
+            )

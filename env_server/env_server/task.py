@@ -1,0 +1,72 @@
+"""The Task contract: one environment instance with a named vector reward.
+
+Every shipped env and every adapter (gymnasium, MO-Gymnasium, dm_control,
+robosuite) implements this; the server only ever talks to Tasks. A Task knows
+nothing of gRPC, sessions or batching: the server owns B Tasks per session.
+
+Objectives are declared once, on the class, as a tuple of `Objective`; the
+reward returned by `step` has exactly one entry per objective, in that order.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import math
+from typing import Any, ClassVar
+
+import gymnasium
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Objective:
+    """One entry of the vector reward."""
+
+    name: str
+    description: str
+    min: float = -math.inf
+    max: float = math.inf
+
+
+@dataclasses.dataclass
+class StepOutcome:
+    """What one instance returns from one step."""
+
+    observation: Any
+    reward: np.ndarray  # float [K], in Task.objectives order
+    terminated: bool
+    truncated: bool
+    info: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+class Task(abc.ABC):
+    """One environment instance.
+
+    Subclasses set the class attributes (or, for adapters whose objectives depend
+    on the wrapped env, instance attributes in __init__) and implement reset/step.
+    Constructor keyword arguments come from MakeRequest.kwargs_json.
+    """
+
+    #: One line for `--list` and ListEnvs.
+    description: ClassVar[str] = ""
+    #: The K objectives, in reward order.
+    objectives: tuple[Objective, ...] = ()
+    #: Time limit applied by the server (truncation); None = no limit.
+    max_episode_steps: int | None = None
+    #: Info keys this task can report each step (numeric scalars or arrays).
+    info_keys: tuple[str, ...] = ()
+
+    observation_space: gymnasium.spaces.Space
+    action_space: gymnasium.spaces.Space
+
+    @abc.abstractmethod
+    def reset(self, seed: int | None = None) -> tuple[Any, dict[str, Any]]:
+        """Start an episode; a given seed makes it reproducible."""
+
+    @abc.abstractmethod
+    def step(self, action: Any) -> StepOutcome:
+        """Advance one step. The action has already been validated against action_space."""
+
+    def close(self) -> None:
+        """Release simulator resources."""

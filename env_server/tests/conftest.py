@@ -1,0 +1,80 @@
+"""Fixtures: real `python -m env_server` subprocesses on 127.0.0.1 with OS-chosen ports.
+
+Every server gets tests/plugins on its PYTHONPATH, so the test-only Tasks there are
+registered through a real `env_server.envs` entry point.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pathlib
+import subprocess
+import sys
+import threading
+from typing import Iterator
+
+import grpc
+import pytest
+
+from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server._proto.mo_env.v1 import env_pb2_grpc
+
+PLUGINS = pathlib.Path(__file__).parent / "plugins"
+
+
+def server_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PLUGINS), env.get("PYTHONPATH", "")]))
+    env.setdefault("MUJOCO_GL", "disable")
+    return env
+
+
+@contextlib.contextmanager
+def running_server(*args: str, timeout: float = 30.0) -> Iterator[str]:
+    """Start a server, yield its address from the LISTENING line, stop it at the end."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "env_server", "--port", "0", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=server_env(),
+    )
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.append(proc.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout)
+    try:
+        assert lines and lines[0].startswith("LISTENING "), f"server did not report LISTENING: {lines}"
+        yield lines[0].split()[1]
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="session")
+def address() -> Iterator[str]:
+    with running_server() as addr:
+        yield addr
+
+
+@pytest.fixture(scope="session")
+def stub(address: str) -> Iterator[env_pb2_grpc.EnvServiceStub]:
+    channel = grpc.insecure_channel(address)
+    yield env_pb2_grpc.EnvServiceStub(channel)
+    channel.close()
+
+
+def make(stub: env_pb2_grpc.EnvServiceStub, env_id: str, num_envs: int = 1, **fields) -> pb.MakeResponse:
+    return stub.Make(pb.MakeRequest(env_id=env_id, num_envs=num_envs, **fields))
+
+
+def rpc_error(call, *args, **kwargs) -> grpc.RpcError:
+    """The RpcError a call raises (fails the test if it succeeds)."""
+    with pytest.raises(grpc.RpcError) as info:
+        call(*args, **kwargs)
+    return info.value

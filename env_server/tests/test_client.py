@@ -1,0 +1,93 @@
+"""The Python client and the `--list` CLI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+
+import grpc
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from conftest import server_env
+from env_server.client import NotFoundError, RemoteEnv, RemoteVectorEnv, list_envs
+from env_server.envs import REGISTRY
+
+
+def test_remote_env_is_a_gymnasium_env_with_vector_reward(address: str) -> None:
+    env = RemoteEnv(address, "dst")
+    try:
+        assert isinstance(env, gymnasium.Env)
+        assert env.objective_names == ("time", "treasure")
+        assert env.reward_space.shape == (2,)
+        np.testing.assert_allclose(env.reward_space.low, [-1, 0])
+        np.testing.assert_allclose(env.reward_space.high, [-1, 23.7], rtol=1e-6)
+        assert env.action_space == gymnasium.spaces.Discrete(4)
+        obs, info = env.reset(seed=3)
+        assert obs.tolist() == [0, 0] and info == {}
+        obs, reward, terminated, truncated, info = env.step(2)
+        assert reward.shape == (2,) and reward.dtype == np.float32
+        np.testing.assert_allclose(reward, [-1, 0.7], rtol=1e-6)
+        assert terminated and not truncated and info["episode"]["length"] == 1
+        assert obs.tolist() == [1, 0]  # autoreset is off: the caller resets
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", ["dst", "humanoid-run"])
+def test_check_env(address: str, env_id: str) -> None:
+    """gymnasium's checker accepts the vector reward (it only warns that it is not a scalar)."""
+    env = RemoteEnv(address, env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(env, skip_render_check=True)
+    env.close()
+
+
+def test_remote_vector_env_round_trip(address: str) -> None:
+    with RemoteVectorEnv(address, "dmc:cartpole-swingup", 3, seed=5) as env:
+        assert [o.name for o in env.spec.objectives] == ["reward"]
+        obs = env.reset()
+        assert obs.shape == (3, 5) and obs.dtype == np.float32
+        obs, reward, terminated, truncated, infos = env.step(np.zeros((3, 1)))
+        assert reward.shape == (3, 1) and terminated.shape == (3,) and infos["episodes"] == []
+    with pytest.raises(NotFoundError) as info:
+        RemoteVectorEnv(address, "no-such-env", 1)
+    assert info.value.code == grpc.StatusCode.NOT_FOUND
+
+
+def test_list_envs_client(address: str) -> None:
+    envs = {env_id: [o.name for o in objectives] for env_id, _, objectives in list_envs(address)}
+    for env_id, cls in REGISTRY.items():
+        assert envs[env_id] == [o.name for o in cls.objectives]
+
+
+def test_cli_list() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "env_server", "--list"], capture_output=True, text=True, env=server_env(), check=True
+    ).stdout
+    for env_id, cls in REGISTRY.items():
+        assert any(line.startswith(f"{env_id}  ") for line in out.splitlines()), env_id
+        for objective in cls.objectives:
+            assert f"    {objective.name}: " in out
+    for pattern in ("gym:<gymnasium id>", "mo:<MO-Gymnasium id>", "dmc:<domain>-<task>"):
+        assert pattern in out
+    assert "faulty  " in out  # entry-point envs are listed too
+
+
+def test_dict_observation_round_trip(address: str) -> None:
+    with RemoteVectorEnv(address, "dict-obs", 2, seed=1) as env:
+        space = env.spec.observation_space
+        assert isinstance(space, gymnasium.spaces.Dict)
+        # gymnasium sorts a plain dict's keys; the wire keeps the task's (sorted) order.
+        assert list(space.spaces) == ["goal", "pos"] and space["goal"]["index"] == gymnasium.spaces.Discrete(3)
+        obs = env.reset()
+        assert obs["pos"].shape == (2, 2) and obs["pos"].dtype == np.float64
+        assert obs["goal"]["index"].shape == (2,) and obs["goal"]["index"].dtype == np.int64
+        expected_goals = [int(np.random.default_rng(1 + i).integers(3)) for i in range(2)]
+        assert obs["goal"]["index"].tolist() == expected_goals
+        obs, *_ = env.step(np.array([[0.5, -0.25], [1.0, 1.0]], np.float32))
+        assert obs["pos"].tolist() == [[0.5, -0.25], [1.0, 1.0]]
