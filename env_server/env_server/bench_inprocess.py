@@ -8,6 +8,9 @@ StepRequest carries) with uniform-random actions generated up front, and prints 
 JSON line: {"env", "num_envs", "steps", "env_steps_per_s", "call_p50_ms", "call_p99_ms"}.
 env_steps_per_s = steps * num_envs / total seconds. The Rust bench compares it with the
 same steps through the server.
+
+With --raw the loop calls the B Task instances directly (no validation, autoreset or
+accounting): what a Python user stepping local envs gets, the strictest baseline.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ def random_actions(space: gymnasium.spaces.Space, steps: int, num_envs: int, see
     return rng.uniform(low, high, size=(steps, num_envs, *space.shape)).astype(space.dtype)
 
 
-def run(env_id: str, num_envs: int, steps: int, seed: int) -> dict[str, object]:
+def run(env_id: str, num_envs: int, steps: int, seed: int, raw: bool = False) -> dict[str, object]:
     session = make_session(Registry().resolve(env_id), num_envs, {}, seed=seed)
     try:
         session.reset()
@@ -44,16 +47,27 @@ def run(env_id: str, num_envs: int, steps: int, seed: int) -> dict[str, object]:
         payloads = [a.tobytes() for a in actions]
         times = np.empty(steps, np.float64)
         clock = time.perf_counter
-        start = clock()
-        for t, data in enumerate(payloads):
-            t0 = clock()
-            session.step(dtype, shape, data)
-            times[t] = clock() - t0
+        if raw:
+            tasks = session.tasks
+            start = clock()
+            for t in range(steps):
+                t0 = clock()
+                for task, action in zip(tasks, actions[t]):
+                    if task.step(action).terminated:
+                        task.reset()
+                times[t] = clock() - t0
+        else:
+            start = clock()
+            for t, data in enumerate(payloads):
+                t0 = clock()
+                session.step(dtype, shape, data)
+                times[t] = clock() - t0
         total = clock() - start
     finally:
         session.close()
     return {
         "env": env_id,
+        "mode": "raw" if raw else "session",
         "num_envs": num_envs,
         "steps": steps,
         "env_steps_per_s": round(steps * num_envs / total, 1),
@@ -68,8 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--num-envs", type=int, default=8, help="instances per Step (default 8)")
     p.add_argument("--steps", type=int, default=2000, help="batch Steps to time (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="seed for the session and the actions (default 0)")
+    p.add_argument("--raw", action="store_true", help="step the Task instances directly (no Session)")
     args = p.parse_args(argv)
-    print(json.dumps(run(args.env, args.num_envs, args.steps, args.seed)), flush=True)
+    print(json.dumps(run(args.env, args.num_envs, args.steps, args.seed, args.raw)), flush=True)
     return 0
 
 

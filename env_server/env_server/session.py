@@ -163,6 +163,11 @@ class Session:
     def num_envs(self) -> int:
         return len(self._tasks)
 
+    @property
+    def tasks(self) -> tuple[Task, ...]:
+        """The B Task instances (read-only view, for benchmarks and tests)."""
+        return tuple(self._tasks)
+
     def _write_obs(self, i: int, obs: Any, bufs: Sequence[np.ndarray]) -> None:
         if self._single_leaf:
             bufs[0][i] = obs

@@ -1,0 +1,124 @@
+//! Env-server throughput: in-process Python vs. through the server from Rust.
+//!
+//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000]`
+//!
+//! For each B in {1, 8, 32}, in one run on the same machine:
+//! - in-process: `python -m env_server.bench_inprocess --raw` steps B Task instances
+//!   in a Python loop (what a local Python user gets);
+//! - remote: the Rust client steps one session of B instances on a local env_server,
+//!   by unary `Step` and by `StepStream`, with actions generated up front.
+//!
+//! Printed per B: env steps/s of each, the ratio remote / in-process, and p50/p99 per
+//! call; at B = 1 also the round-trip overhead (remote p50 - in-process p50).
+//! Targets (issue 2): ratio >= 0.90 at B >= 8, overhead <= 0.3 ms at B = 1.
+#![allow(clippy::print_stdout, reason = "a benchmark prints its figures")]
+
+use std::process::Command;
+use std::time::Instant;
+
+use agent::env::grpc::EnvClient;
+use agent::env::server_process::{LocalServer, ServerOptions, default_python};
+use agent::env::{Env, HostTensor, MakeOptions, random_action};
+use rand::SeedableRng;
+
+struct Figures {
+    env_steps_per_s: f64,
+    p50_ms: f64,
+    p99_ms: f64,
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let idx = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[idx]
+}
+
+fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
+    let out = Command::new(default_python())
+        .args(["-m", "env_server.bench_inprocess", "--raw", "--env", env])
+        .args(["--num-envs", &num_envs.to_string(), "--steps", &calls.to_string()])
+        .env("MUJOCO_GL", "disable")
+        .output()
+        .expect("run python -m env_server.bench_inprocess (scripts/setup.sh makes .venv)");
+    assert!(out.status.success(), "bench_inprocess failed: {}", String::from_utf8_lossy(&out.stderr));
+    let line = String::from_utf8_lossy(&out.stdout);
+    let v: serde_json::Value = serde_json::from_str(line.trim()).expect("one JSON line");
+    let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} in {line}"));
+    Figures { env_steps_per_s: f("env_steps_per_s"), p50_ms: f("call_p50_ms"), p99_ms: f("call_p99_ms") }
+}
+
+async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, stream: bool) -> Figures {
+    let mut session = client.make(&MakeOptions { seed: Some(0), ..MakeOptions::new(env, num_envs) }).await.unwrap();
+    if stream {
+        session.use_stream();
+    }
+    session.reset(&[], &[]).await.unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let space = session.spec().action_space.clone();
+    let actions: Vec<HostTensor> = (0..calls).map(|_| random_action(&space, num_envs, &mut rng)).collect();
+    // Warm up the connection (and the stream) outside the timed loop.
+    for a in actions.iter().take(5) {
+        session.step(a).await.unwrap();
+    }
+    let mut times = Vec::with_capacity(calls);
+    let start = Instant::now();
+    for a in &actions {
+        let t0 = Instant::now();
+        session.step(a).await.unwrap();
+        times.push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+    let total = start.elapsed().as_secs_f64();
+    session.close().await.unwrap();
+    times.sort_by(f64::total_cmp);
+    Figures {
+        env_steps_per_s: (calls * num_envs) as f64 / total,
+        p50_ms: percentile(&times, 0.5),
+        p99_ms: percentile(&times, 0.99),
+    }
+}
+
+fn arg(name: &str, default: &str) -> String {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1).cloned()).unwrap_or_else(|| default.into())
+}
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() {
+    let env = arg("--env", "humanoid-run");
+    let base_calls: usize = arg("--calls", "2000").parse().expect("--calls is a number");
+    let server = LocalServer::start(&ServerOptions::default()).await.expect("start env_server");
+    let client = EnvClient::connect(server.address()).await.expect("connect");
+    println!("env_throughput: {env}, in-process Python (raw Task loop) vs. Rust client -> env_server on 127.0.0.1");
+    println!(
+        "{:>3} {:>7} | {:>12} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9}",
+        "B", "calls", "inproc st/s", "p50 ms", "p99 ms", "unary st/s", "ratio", "p50 ms", "p99 ms", "stream st/s",
+        "ratio", "p50 ms", "p99 ms"
+    );
+    let mut summary = Vec::new();
+    for num_envs in [1usize, 8, 32] {
+        // Same env-step budget per B (at least 100 calls).
+        let calls = (base_calls / num_envs).max(100);
+        let local = in_process(&env, num_envs, calls);
+        let unary = remote(&client, &env, num_envs, calls, false).await;
+        let stream = remote(&client, &env, num_envs, calls, true).await;
+        let ru = unary.env_steps_per_s / local.env_steps_per_s;
+        let rs = stream.env_steps_per_s / local.env_steps_per_s;
+        println!(
+            "{num_envs:>3} {calls:>7} | {:>12.0} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3}",
+            local.env_steps_per_s, local.p50_ms, local.p99_ms, unary.env_steps_per_s, ru, unary.p50_ms, unary.p99_ms,
+            stream.env_steps_per_s, rs, stream.p50_ms, stream.p99_ms
+        );
+        if num_envs == 1 {
+            summary.push(format!(
+                "B=1 round-trip overhead over in-process p50: unary {:.3} ms, stream {:.3} ms (target <= 0.3)",
+                unary.p50_ms - local.p50_ms,
+                stream.p50_ms - local.p50_ms
+            ));
+        } else {
+            summary.push(format!("B={num_envs} ratio to in-process: unary {ru:.2}, stream {rs:.2} (target >= 0.90)"));
+        }
+    }
+    server.stop().await.expect("stop env_server");
+    for line in summary {
+        println!("{line}");
+    }
+}

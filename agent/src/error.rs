@@ -1,0 +1,88 @@
+//! Errors of the environment side of the agent (client, spawned server).
+
+use crate::spec::DType;
+
+/// gRPC status codes the client distinguishes (the rest map to `Other`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StatusKind {
+    /// INVALID_ARGUMENT: the request was malformed (action shape, dtype, value...).
+    InvalidArgument,
+    /// NOT_FOUND: unknown env id or session.
+    NotFound,
+    /// FAILED_PRECONDITION: e.g. step before reset.
+    FailedPrecondition,
+    /// RESOURCE_EXHAUSTED: session limit or oversized message.
+    ResourceExhausted,
+    /// INTERNAL: the simulator raised inside one session.
+    Internal,
+    /// UNAVAILABLE: the server cannot be reached (retried with backoff).
+    Unavailable,
+    /// Any other code.
+    Other,
+}
+
+/// Everything that can go wrong talking to an environment.
+#[derive(Debug, thiserror::Error)]
+pub enum EnvError {
+    /// The server could not be reached at all (after retries).
+    #[error("cannot connect to env server at {address}: {reason}")]
+    Connect {
+        /// host:port or URL that was tried.
+        address: String,
+        /// Transport error text.
+        reason: String,
+    },
+    /// The server answered a call with an error status.
+    #[error("{call} failed ({code:?}): {message}")]
+    Status {
+        /// RPC name, e.g. `Step`.
+        call: &'static str,
+        /// Status class.
+        code: StatusKind,
+        /// The server's message (says what was expected and what arrived).
+        message: String,
+    },
+    /// The server sent something that violates the protocol.
+    #[error("protocol violation in {field}: expected {expected}, got {got}")]
+    Protocol {
+        /// Message field that was wrong.
+        field: String,
+        /// What the protocol requires.
+        expected: String,
+        /// What arrived.
+        got: String,
+    },
+    /// The caller passed data that does not fit the session's spec.
+    #[error("{field}: expected {expected}, got {got}")]
+    BadInput {
+        /// Argument that was wrong.
+        field: String,
+        /// What the spec requires.
+        expected: String,
+        /// What was passed.
+        got: String,
+    },
+    /// A tensor had a dtype the caller did not ask for.
+    #[error("{field}: expected dtype {expected:?}, got {got:?}")]
+    DType {
+        /// Tensor name.
+        field: String,
+        /// Expected element type.
+        expected: DType,
+        /// Actual element type.
+        got: DType,
+    },
+    /// Starting or talking to a local env_server process failed.
+    #[error("env_server process: {0}")]
+    Process(String),
+}
+
+impl EnvError {
+    /// The status class of a server error, if this is one.
+    pub fn status_kind(&self) -> Option<StatusKind> {
+        match self {
+            EnvError::Status { code, .. } => Some(*code),
+            _ => None,
+        }
+    }
+}

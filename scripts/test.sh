@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Set up (scripts/setup.sh) and run every test: env_server's Python tests, then
+# the Rust unit, golden and end-to-end tests (which start real env_server
+# processes on 127.0.0.1 with OS-chosen ports). Needs no GPU and no network
+# beyond the package registries used by setup.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh
+export MUJOCO_GL=${MUJOCO_GL:-disable}
+
+echo "==> Python tests (env_server)"
+(cd env_server && ../.venv/bin/python -m pytest -q tests)
+
+echo "==> Rust tests (unit, golden, end-to-end)"
+cargo test --locked --workspace

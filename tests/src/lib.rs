@@ -1,0 +1,29 @@
+//! Shared helpers for the end-to-end tests in `tests/tests/`.
+//!
+//! Every test starts its own real `env_server` on 127.0.0.1 with an OS-chosen
+//! port (through [`agent::env::server_process::LocalServer`]) and stops it.
+
+use agent::env::grpc::EnvClient;
+use agent::env::server_process::{LocalServer, ServerOptions};
+
+/// A started server and a client connected to it.
+#[derive(Debug)]
+pub struct Harness {
+    /// The server process (killed on drop).
+    pub server: LocalServer,
+    /// A client connected to it.
+    pub client: EnvClient,
+}
+
+impl Harness {
+    /// Start a server with extra flags and connect to it.
+    pub async fn start(extra_args: &[&str]) -> Harness {
+        let options = ServerOptions {
+            extra_args: extra_args.iter().map(|s| s.to_string()).collect(),
+            ..ServerOptions::default()
+        };
+        let server = LocalServer::start(&options).await.expect("env_server starts");
+        let client = EnvClient::connect(server.address()).await.expect("client connects");
+        Harness { server, client }
+    }
+}
