@@ -3,10 +3,20 @@
 from __future__ import annotations
 
 from env_server.envs.dst import DeepSeaTreasure
+from env_server.envs.humanoid_mocap import HumanoidMocap
 from env_server.envs.humanoid_run import HumanoidRun
+from env_server.envs.sawyer_peg import SawyerPeg
+from env_server.envs.shadow_orient import ShadowOrient
+from env_server.envs.shadow_touch import ShadowTouch
+from env_server.envs.shadow_turn import ShadowTurn
 from env_server.task import Task
 
 REGISTRY: dict[str, type[Task]] = {
     "dst": DeepSeaTreasure,
+    "humanoid-mocap": HumanoidMocap,
     "humanoid-run": HumanoidRun,
+    "sawyer-peg": SawyerPeg,
+    "shadow-orient": ShadowOrient,
+    "shadow-touch": ShadowTouch,
+    "shadow-turn": ShadowTurn,
 }
