@@ -16,6 +16,11 @@
 //! Shape legend used in docs: B batch (env instances or replay samples), M sampled
 //! actions per state, D action dims, K objectives, T snippet length.
 
+pub mod algo;
+pub mod checkpoint;
+pub mod config;
+pub mod device;
 pub mod env;
 pub mod error;
+pub mod nets;
 pub mod spec;

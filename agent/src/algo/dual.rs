@@ -1,0 +1,123 @@
+//! Positive Lagrange multipliers: the temperatures eta_k of the E-step (eq. 34) and the
+//! trust-region multipliers alpha of the M-step (eqs. 17-20).
+//!
+//! Each multiplier is `softplus(param) + 1e-8`, the parameter gets one Adam step per
+//! learner step (its own optimizer, dual learning rate, never gradient-clipped) and is
+//! floored at -18 *after* the update (eta >= ~2.5e-8), as in Acme's JAX learner: a
+//! clamp inside the loss would give a clamped dual zero gradient and it could never
+//! recover (acme_mompo.md §1, §9.5).
+
+use super::adam::{Adam, AdamConfig};
+use tch::{Device, Kind, Tensor};
+
+/// Added to softplus so a multiplier is never exactly 0.
+pub const DUAL_OFFSET: f64 = 1e-8;
+/// Floor applied to the raw parameters after each update.
+pub const DUAL_PARAM_FLOOR: f64 = -18.0;
+
+/// `softplus(param) + 1e-8`, differentiable in `param`.
+pub fn positive(param: &Tensor) -> Tensor {
+    param.softplus() + DUAL_OFFSET
+}
+
+/// The parameter whose `positive` is `value` (value > 1e-8).
+pub fn inverse_positive(value: f64) -> f64 {
+    let x = value - DUAL_OFFSET;
+    // log(exp(x) - 1) written stably for large x.
+    x + (-(-x).exp_m1()).ln()
+}
+
+/// All dual variables of one learner.
+#[derive(Debug)]
+pub struct Duals {
+    /// Raw temperature parameters, `[K]`.
+    pub temperature_param: Tensor,
+    /// Raw trust-region parameters: `[2]` = (alpha_mu, alpha_Sigma) for Gaussian
+    /// policies, `[1]` = alpha for categorical ones.
+    pub alpha_param: Tensor,
+    pub(crate) optimizer: Adam,
+}
+
+impl Duals {
+    /// Multipliers starting at the given (positive) values.
+    pub fn new(temperatures: &[f64], alphas: &[f64], lr: f64, device: Device) -> Self {
+        let make = |values: &[f64]| {
+            let raw: Vec<f32> = values.iter().map(|&v| inverse_positive(v) as f32).collect();
+            Tensor::from_slice(&raw)
+                .to_device(device)
+                .set_requires_grad(true)
+        };
+        let temperature_param = make(temperatures);
+        let alpha_param = make(alphas);
+        let params = vec![
+            ("temperature".to_string(), temperature_param.shallow_clone()),
+            ("alpha".to_string(), alpha_param.shallow_clone()),
+        ];
+        // Adam's eps for the duals is PyTorch's default; only lr is configured (Acme).
+        let optimizer = Adam::new(params, AdamConfig::new(lr, 1e-8));
+        Self {
+            temperature_param,
+            alpha_param,
+            optimizer,
+        }
+    }
+
+    /// eta_k, `[K]`, differentiable.
+    pub fn temperature(&self) -> Tensor {
+        positive(&self.temperature_param)
+    }
+
+    /// alpha values, `[2]` or `[1]`, differentiable.
+    pub fn alpha(&self) -> Tensor {
+        positive(&self.alpha_param)
+    }
+
+    /// Clears the dual gradients (before the backward pass that fills them).
+    pub fn zero_grad(&mut self) {
+        self.optimizer.zero_grad();
+    }
+
+    /// One Adam step on the duals, then the floor.
+    pub fn step(&mut self) {
+        self.optimizer.step();
+        tch::no_grad(|| {
+            let _ = self.temperature_param.clamp_min_(DUAL_PARAM_FLOOR);
+            let _ = self.alpha_param.clamp_min_(DUAL_PARAM_FLOOR);
+        });
+    }
+
+    /// Current values as host vectors: (eta_k, alpha).
+    pub fn values(&self) -> (Vec<f32>, Vec<f32>) {
+        let to_vec = |t: Tensor| {
+            Vec::<f32>::try_from(&t.detach().to_device(Device::Cpu).to_kind(Kind::Float))
+                .unwrap_or_default()
+        };
+        (to_vec(self.temperature()), to_vec(self.alpha()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inverse_round_trips_and_floor_holds() {
+        for v in [1e-6, 0.1, 1.0, 10.0, 1000.0] {
+            let p = Tensor::from_slice(&[inverse_positive(v)]);
+            assert!(
+                (positive(&p).double_value(&[0]) - v).abs() < 1e-6 * v.max(1.0),
+                "{v}"
+            );
+        }
+        let mut duals = Duals::new(&[1e-7], &[1.0, 1.0], 10.0, Device::Cpu);
+        duals.zero_grad();
+        // A huge push towards 0 lands on the floor, not below.
+        (duals.temperature() * 1e6).sum(Kind::Float).backward();
+        duals.step();
+        duals.zero_grad();
+        (duals.temperature() * 1e6).sum(Kind::Float).backward();
+        duals.step();
+        assert!(duals.temperature_param.double_value(&[0]) >= DUAL_PARAM_FLOOR);
+        assert!(duals.temperature().double_value(&[0]) > 0.0);
+    }
+}

@@ -1,0 +1,135 @@
+//! E-step of MO-MPO (Sec. 4.2.1; appendix E.1, eqs. 32-34; Algorithm 3 lines 9-13),
+//! vectorised over the K objectives.
+//!
+//! Sampled (Gaussian policies): the M actions per state are drawn from the target
+//! policy, so the prior pi_old is implicit and the weights are a softmax over samples,
+//! `q_k(a_j|s) = softmax_j(Q_k(s, a_j) / eta_k)`. The temperature dual of eq. 34 is
+//! estimated by Monte Carlo,
+//! `g(eta_k) = eta_k * (eps_k + mean_s log mean_j exp(Q_kj / eta_k))`
+//! `         = eta_k * (eps_k + mean_s logsumexp_j(Q_kj / eta_k) - log M)`.
+//! Exact (categorical policies, A.2 and acme_mompo.md §3): all A actions are enumerated
+//! with pi_old as the prior, `q_k = softmax_a(Q_k / eta_k + log pi_old)` and
+//! `g(eta_k) = eta_k * (eps_k + mean_s logsumexp_a(Q_k / eta_k + log pi_old))` (no -log M).
+//!
+//! `torch.logsumexp` subtracts the per-state maximum over the sample axis before
+//! exponentiating, so large Q / eta never overflow. Q and the weights carry no gradient;
+//! the loss's gradient reaches only eta (`d g / d eta_k = eps_k - KL(q_k || pi_old)`).
+//! `eps_k = 0` is the limit eta_k -> infinity: q_k is pi_old itself (uniform weights
+//! over the samples, the prior for the exact case) and eta_k gets no gradient.
+//!
+//! Shape legend: M samples (or A actions), B states, K objectives.
+
+use tch::{Kind, Tensor};
+
+/// Result of the E-step for all objectives.
+#[derive(Debug)]
+pub struct EStepOutput {
+    /// `[M, B, K]`, no gradient; sums to 1 over M for every state and objective.
+    pub weights: Tensor,
+    /// Scalar: sum over objectives with eps_k > 0 of the dual g(eta_k); gradient only
+    /// with respect to `temperature`.
+    pub temperature_loss: Tensor,
+    /// `[K]`, no gradient: realised KL(q_k || pi_old) averaged over states.
+    pub kl: Tensor,
+}
+
+fn active_mask(epsilon: &Tensor) -> Tensor {
+    epsilon.gt(0.0).to_kind(Kind::Float)
+}
+
+/// Sampled E-step (Gaussian policy).
+/// # Shapes
+/// `q [M, B, K]`, `temperature [K]` (positive, may require grad), `epsilon [K]`.
+pub fn sampled_estep(q: &Tensor, temperature: &Tensor, epsilon: &Tensor) -> EStepOutput {
+    let m = q.size()[0];
+    let active = active_mask(epsilon);
+    let scaled = q.detach() / temperature;
+    let softmax = scaled.detach().softmax(0, Kind::Float);
+    let weights: Tensor = &softmax * &active + (1.0 - &active) / (m as f64);
+    let log_mean_exp = scaled
+        .logsumexp([0i64].as_slice(), false)
+        .mean_dim(0, false, Kind::Float)
+        - (m as f64).ln();
+    let dual = temperature * (epsilon + log_mean_exp);
+    let temperature_loss = (dual * &active).sum(Kind::Float);
+    let kl = (&weights * (&weights * (m as f64)).clamp_min(1e-30).log())
+        .sum_dim_intlist(0, false, Kind::Float)
+        .mean_dim(0, false, Kind::Float);
+    EStepOutput {
+        weights,
+        temperature_loss,
+        kl,
+    }
+}
+
+/// Exact E-step over all discrete actions with `log_prior = log pi_old`.
+/// # Shapes
+/// `q [A, B, K]`, `log_prior [A, B]`, `temperature [K]`, `epsilon [K]`.
+pub fn exact_estep(
+    q: &Tensor,
+    log_prior: &Tensor,
+    temperature: &Tensor,
+    epsilon: &Tensor,
+) -> EStepOutput {
+    let active = active_mask(epsilon);
+    let log_prior = log_prior.detach().unsqueeze(-1);
+    let scaled = q.detach() / temperature + &log_prior;
+    let posterior = scaled.detach().softmax(0, Kind::Float);
+    let weights: Tensor = &posterior * &active + log_prior.exp() * (1.0 - &active);
+    let log_partition = scaled
+        .logsumexp([0i64].as_slice(), false)
+        .mean_dim(0, false, Kind::Float);
+    let dual = temperature * (epsilon + log_partition);
+    let temperature_loss = (dual * &active).sum(Kind::Float);
+    let kl = (&weights * (weights.clamp_min(1e-30).log() - &log_prior))
+        .sum_dim_intlist(0, false, Kind::Float)
+        .mean_dim(0, false, Kind::Float);
+    EStepOutput {
+        weights,
+        temperature_loss,
+        kl,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    #[test]
+    fn huge_q_over_small_eta_stays_finite() {
+        let q = Tensor::from_slice(&[1e4f32, 0.0, -1e4]).reshape([3, 1, 1]);
+        let eta = Tensor::from_slice(&[1e-3f32]);
+        let out = sampled_estep(&q, &eta, &Tensor::from_slice(&[0.1f32]));
+        assert_eq!(out.weights.double_value(&[0, 0, 0]), 1.0);
+        assert!(out.temperature_loss.double_value(&[]).is_finite());
+    }
+
+    #[test]
+    fn zero_epsilon_gives_prior_weights_and_no_dual_gradient() {
+        let q = Tensor::randn([4, 3, 2], (Kind::Float, Device::Cpu));
+        let eta = Tensor::from_slice(&[0.5f32, 0.5]).set_requires_grad(true);
+        let eps = Tensor::from_slice(&[0.1f32, 0.0]);
+        let out = sampled_estep(&q, &eta, &eps);
+        assert!(out.weights.select(2, 1).allclose(
+            &Tensor::full([4, 3], 0.25, (Kind::Float, Device::Cpu)),
+            1e-6,
+            1e-7,
+            false
+        ));
+        out.temperature_loss.backward();
+        assert_eq!(eta.grad().double_value(&[1]), 0.0);
+        assert_ne!(eta.grad().double_value(&[0]), 0.0);
+        let prior = Tensor::from_slice(&[0.1f32, 0.2, 0.3, 0.4])
+            .log()
+            .reshape([4, 1])
+            .expand([4, 3], false);
+        let exact = exact_estep(&q, &prior, &eta.detach(), &eps);
+        assert!(
+            exact
+                .weights
+                .select(2, 1)
+                .allclose(&prior.exp(), 1e-6, 1e-7, false)
+        );
+    }
+}

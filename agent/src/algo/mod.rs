@@ -1,0 +1,19 @@
+//! MO-MPO and scalarized MPO (Abdolmaleki et al. 2020, appendix C, Algorithm 3):
+//! policy evaluation with Retrace, per-objective E-steps, one decoupled M-step.
+//! Pure library code: no tokio, tonic or proto types.
+//!
+//! Shape legend: B batch, M sampled actions, D action dims, K objectives,
+//! C learned critics, T snippet length.
+
+pub mod adam;
+pub mod batch;
+pub mod dual;
+pub mod estep;
+pub mod mompo;
+pub mod mstep;
+pub mod objectives;
+pub mod retrace;
+
+pub use batch::{BatchError, SnippetBatch};
+pub use mompo::{LearnerError, LearnerStats, MoMpoLearner, PhaseTimings};
+pub use objectives::{BoundObjectives, LearnerDims, QSource, bind};

@@ -1,0 +1,288 @@
+//! Binding config objectives to the env's reward columns by name (MO-MPO: one
+//! epsilon_k per objective; scalarized MPO: one weight per reward column and one
+//! epsilon), and the learner's view of the env's dimensions.
+//!
+//! After binding, the E-step sees K objectives in env order, each either a critic head
+//! or the closed-form action norm `-||a||_2` (appendix A, humanoid run). Critic head c
+//! learns the reward `sum_j W[j, c] r_j` (W `[K_env, C]`): a one-hot column for MO-MPO,
+//! the scalarization weights for scalarized MPO.
+
+use crate::config::{
+    Algorithm, ConfigError, LearnerConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
+};
+use crate::nets::ActionKind;
+use crate::spec::{EnvSpec, ObjectiveSpec, Space};
+use serde::{Deserialize, Serialize};
+
+/// Sizes the networks need, taken from an `EnvSpec`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LearnerDims {
+    /// Flattened observation size.
+    pub obs_dim: i64,
+    /// Continuous (D) or discrete (A) actions.
+    pub action: ActionKind,
+    /// Env objective names in reward-column order (K_env columns).
+    pub reward_names: Vec<String>,
+}
+
+impl LearnerDims {
+    /// Reads the dimensions from a spec; a Dict action space is rejected.
+    pub fn from_spec(spec: &EnvSpec) -> Result<Self, ConfigError> {
+        let action = match &spec.action_space {
+            Space::Box(b) => ActionKind::Continuous {
+                dim: b.numel() as i64,
+            },
+            Space::Discrete(d) => ActionKind::Discrete { n: d.n },
+            other => {
+                return Err(ConfigError::Invalid {
+                    field: "env action_space".into(),
+                    requirement: "a Box or Discrete space".into(),
+                    got: format!("{other:?}"),
+                });
+            }
+        };
+        Ok(Self {
+            obs_dim: spec.observation_space.flat_dim() as i64,
+            action,
+            reward_names: spec
+                .objective_names()
+                .into_iter()
+                .map(String::from)
+                .collect(),
+        })
+    }
+}
+
+/// Where the E-step gets objective k's Q-values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum QSource {
+    /// Column `head` of the critic output.
+    Critic {
+        /// Critic head index.
+        head: usize,
+    },
+    /// `-||a||_2` of the sampled action.
+    ActionNorm,
+}
+
+/// One objective of the E-step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BoundObjective {
+    /// Objective name (env name, or `scalarized` for scalarized MPO).
+    pub name: String,
+    /// KL bound epsilon_k.
+    pub epsilon: f64,
+    /// Where its Q-values come from.
+    pub source: QSource,
+}
+
+/// The bound objectives and the critic reward map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BoundObjectives {
+    /// The K objectives of the E-step, in env order.
+    pub objectives: Vec<BoundObjective>,
+    /// Names of the C critic heads.
+    pub critic_names: Vec<String>,
+    /// `[K_env][C]`: reward weights of each critic head.
+    pub critic_reward_weights: Vec<Vec<f64>>,
+}
+
+fn check_names(what: &str, given: &[&str], env: &[String]) -> Result<(), ConfigError> {
+    let mut duplicate: Vec<String> = Vec::new();
+    for (i, name) in given.iter().enumerate() {
+        if given[..i].contains(name) && !duplicate.iter().any(|d| d == name) {
+            duplicate.push((*name).to_string());
+        }
+    }
+    let missing: Vec<String> = env
+        .iter()
+        .filter(|e| !given.contains(&e.as_str()))
+        .cloned()
+        .collect();
+    let mut extra: Vec<String> = given
+        .iter()
+        .filter(|g| !env.iter().any(|e| e == *g))
+        .map(|g| g.to_string())
+        .collect();
+    extra.dedup();
+    if missing.is_empty() && extra.is_empty() && duplicate.is_empty() {
+        return Ok(());
+    }
+    Err(ConfigError::ObjectiveNames {
+        what: what.into(),
+        env: env.to_vec(),
+        missing,
+        extra,
+        duplicate,
+    })
+}
+
+/// Binds MO-MPO objectives to env objectives by name (`bind_names` on the spec's names).
+pub fn bind(
+    objectives: &[ObjectiveConfig],
+    env: &[ObjectiveSpec],
+) -> Result<BoundObjectives, ConfigError> {
+    let names: Vec<String> = env.iter().map(|o| o.name.clone()).collect();
+    bind_names(objectives, &names)
+}
+
+/// Binds MO-MPO objectives to env reward names: every env objective exactly once.
+pub fn bind_names(
+    objectives: &[ObjectiveConfig],
+    env: &[String],
+) -> Result<BoundObjectives, ConfigError> {
+    let given: Vec<&str> = objectives.iter().map(|o| o.name.as_str()).collect();
+    check_names("objectives", &given, env)?;
+    let mut bound = BoundObjectives {
+        objectives: Vec::new(),
+        critic_names: Vec::new(),
+        critic_reward_weights: vec![Vec::new(); env.len()],
+    };
+    for (column, name) in env.iter().enumerate() {
+        let cfg = objectives
+            .iter()
+            .find(|o| &o.name == name)
+            .expect("checked above");
+        let source = match cfg.source {
+            ObjectiveSource::ActionNorm => QSource::ActionNorm,
+            ObjectiveSource::Learned => {
+                let head = bound.critic_names.len();
+                bound.critic_names.push(name.clone());
+                for (j, row) in bound.critic_reward_weights.iter_mut().enumerate() {
+                    row.push(if j == column { 1.0 } else { 0.0 });
+                }
+                QSource::Critic { head }
+            }
+        };
+        bound.objectives.push(BoundObjective {
+            name: name.clone(),
+            epsilon: cfg.epsilon,
+            source,
+        });
+    }
+    Ok(bound)
+}
+
+/// Binds scalarization weights: one critic on `sum_k w_k r_k`, one objective.
+pub fn bind_scalarized(
+    epsilon: f64,
+    weights: &[ObjectiveWeight],
+    env: &[String],
+) -> Result<BoundObjectives, ConfigError> {
+    let given: Vec<&str> = weights.iter().map(|w| w.name.as_str()).collect();
+    check_names("algorithm.weights", &given, env)?;
+    let critic_reward_weights = env
+        .iter()
+        .map(|name| {
+            vec![
+                weights
+                    .iter()
+                    .find(|w| &w.name == name)
+                    .expect("checked above")
+                    .weight,
+            ]
+        })
+        .collect();
+    Ok(BoundObjectives {
+        objectives: vec![BoundObjective {
+            name: "scalarized".into(),
+            epsilon,
+            source: QSource::Critic { head: 0 },
+        }],
+        critic_names: vec!["scalarized".into()],
+        critic_reward_weights,
+    })
+}
+
+/// Validates `cfg` and binds it against `dims`.
+pub fn bind_config(
+    cfg: &LearnerConfig,
+    dims: &LearnerDims,
+) -> Result<BoundObjectives, ConfigError> {
+    cfg.validate()?;
+    let bound = match &cfg.algorithm {
+        Algorithm::MoMpo => bind_names(&cfg.objectives, &dims.reward_names)?,
+        Algorithm::ScalarizedMpo { epsilon, weights } => {
+            bind_scalarized(*epsilon, weights, &dims.reward_names)?
+        }
+    };
+    if let ActionKind::Discrete { .. } = dims.action
+        && let Some(o) = bound
+            .objectives
+            .iter()
+            .find(|o| o.source == QSource::ActionNorm)
+    {
+        return Err(ConfigError::Unsupported {
+            name: o.name.clone(),
+            kind: ObjectiveSource::ActionNorm,
+        });
+    }
+    if bound.critic_names.is_empty() {
+        return Err(ConfigError::Invalid {
+            field: "objectives".into(),
+            requirement: "at least one learned objective".into(),
+            got: format!("{:?}", cfg.objectives),
+        });
+    }
+    Ok(bound)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn obj(name: &str, epsilon: f64, source: ObjectiveSource) -> ObjectiveConfig {
+        ObjectiveConfig {
+            name: name.into(),
+            epsilon,
+            source,
+        }
+    }
+
+    fn env() -> Vec<String> {
+        vec!["task".into(), "action_norm".into()]
+    }
+
+    #[test]
+    fn binds_in_env_order_with_closed_form_action_norm() {
+        let cfg = [
+            obj("action_norm", 0.01, ObjectiveSource::ActionNorm),
+            obj("task", 0.1, ObjectiveSource::Learned),
+        ];
+        let b = bind_names(&cfg, &env()).unwrap();
+        assert_eq!(b.objectives[0].source, QSource::Critic { head: 0 });
+        assert_eq!(b.objectives[1].source, QSource::ActionNorm);
+        assert_eq!(b.critic_names, vec!["task".to_string()]);
+        assert_eq!(b.critic_reward_weights, vec![vec![1.0], vec![0.0]]);
+    }
+
+    #[test]
+    fn names_missing_extra_and_duplicates() {
+        let cfg = [
+            obj("task", 0.1, ObjectiveSource::Learned),
+            obj("task", 0.2, ObjectiveSource::Learned),
+            obj("pain", 0.1, ObjectiveSource::Learned),
+        ];
+        let msg = bind_names(&cfg, &env()).unwrap_err().to_string();
+        assert!(msg.contains(r#"missing ["action_norm"]"#), "{msg}");
+        assert!(msg.contains(r#"extra ["pain"]"#), "{msg}");
+        assert!(msg.contains(r#"duplicate ["task"]"#), "{msg}");
+    }
+
+    #[test]
+    fn scalarized_uses_weights_in_env_order() {
+        let w = [
+            ObjectiveWeight {
+                name: "action_norm".into(),
+                weight: 0.1,
+            },
+            ObjectiveWeight {
+                name: "task".into(),
+                weight: 0.9,
+            },
+        ];
+        let b = bind_scalarized(0.1, &w, &env()).unwrap();
+        assert_eq!(b.critic_reward_weights, vec![vec![0.9], vec![0.1]]);
+        assert_eq!(b.objectives.len(), 1);
+    }
+}

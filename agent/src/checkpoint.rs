@@ -1,0 +1,276 @@
+//! Saving and restoring the whole learner state in a directory:
+//! - `params.safetensors`: online and target policy and critic variables
+//!   (`policy/<name>`, `target_policy/<name>`, `critic/<name>`, `target_critic/<name>`)
+//!   and the raw dual parameters (`duals/temperature`, `duals/alpha`);
+//! - `optimizer.safetensors`: Adam moments of the policy, critic and dual optimizers
+//!   (`<optimizer>/exp_avg/<name>`, `<optimizer>/exp_avg_sq/<name>`);
+//! - `state.json`: format version, step counter, Adam step counts, dual values (for
+//!   reading), the config and the dimensions.
+//!
+//! Writes are atomic at the directory level: everything goes to `DIR.tmp-<pid>`; then
+//! an existing `DIR` is renamed to `DIR.old-<pid>`, the new one renamed to `DIR`, and
+//! only then is the old one removed. A crash leaves either the old or the new
+//! checkpoint complete under one of those names.
+
+use crate::algo::adam::AdamStateError;
+use crate::algo::{LearnerDims, LearnerError, MoMpoLearner};
+use crate::config::LearnerConfig;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use tch::{Device, Tensor, nn};
+
+const FORMAT_VERSION: u32 = 1;
+
+/// Errors of saving or loading a checkpoint.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    /// File system error, with the path involved.
+    #[error("checkpoint {path}: {source}")]
+    Io {
+        /// Path being read or written.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// `state.json` could not be read or written.
+    #[error("checkpoint {path}: {source}")]
+    Json {
+        /// Path of `state.json`.
+        path: PathBuf,
+        /// The serde error.
+        source: serde_json::Error,
+    },
+    /// A tensor file is missing a tensor or has a wrong shape.
+    #[error("checkpoint {path}: {message}")]
+    Content {
+        /// File concerned.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// libtorch failed reading or writing safetensors.
+    #[error("checkpoint: {0}")]
+    Torch(#[from] tch::TchError),
+    /// The stored config could not rebuild a learner.
+    #[error("checkpoint: {0}")]
+    Learner(#[from] LearnerError),
+    /// Optimizer state did not fit.
+    #[error("checkpoint: {0}")]
+    Optimizer(#[from] AdamStateError),
+}
+
+/// Contents of `state.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CheckpointState {
+    /// Layout version of the directory.
+    pub format_version: u32,
+    /// Learner steps done.
+    pub step: u64,
+    /// Adam step counts: policy, critic, duals.
+    pub adam_steps: [i64; 3],
+    /// eta_k per objective (informational; the exact values are in params.safetensors).
+    pub temperature: Vec<f32>,
+    /// alpha values (informational).
+    pub alpha: Vec<f32>,
+    /// Learner configuration.
+    pub config: LearnerConfig,
+    /// Dimensions the learner was built for.
+    pub dims: LearnerDims,
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
+    move |source| CheckpointError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn prefixed(vs: &nn::VarStore, prefix: &str) -> Vec<(String, Tensor)> {
+    let mut out: Vec<(String, Tensor)> = vs
+        .variables()
+        .into_iter()
+        .map(|(k, v)| (format!("{prefix}/{k}"), v.detach()))
+        .collect();
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    out
+}
+
+fn load_prefixed(
+    vs: &nn::VarStore,
+    prefix: &str,
+    tensors: &HashMap<String, Tensor>,
+    path: &Path,
+) -> Result<(), CheckpointError> {
+    for (name, mut var) in vs.variables() {
+        let key = format!("{prefix}/{name}");
+        let src = tensors.get(&key).ok_or_else(|| CheckpointError::Content {
+            path: path.to_path_buf(),
+            message: format!("missing tensor {key}"),
+        })?;
+        if src.size() != var.size() {
+            let message = format!(
+                "tensor {key}: expected shape {:?}, got {:?}",
+                var.size(),
+                src.size()
+            );
+            return Err(CheckpointError::Content {
+                path: path.to_path_buf(),
+                message,
+            });
+        }
+        tch::no_grad(|| var.copy_(src));
+    }
+    Ok(())
+}
+
+fn read_tensors(path: &Path, device: Device) -> Result<HashMap<String, Tensor>, CheckpointError> {
+    Ok(Tensor::read_safetensors(path)?
+        .into_iter()
+        .map(|(k, v)| (k, v.to_device(device)))
+        .collect())
+}
+
+impl MoMpoLearner {
+    /// Writes the full learner state to `dir` atomically (see module docs).
+    pub fn save_checkpoint(&self, dir: &Path) -> Result<(), CheckpointError> {
+        let name = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "checkpoint".into());
+        let parent = dir
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        std::fs::create_dir_all(parent).map_err(io(parent))?;
+        let tmp = parent.join(format!("{name}.tmp-{}", std::process::id()));
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+        }
+        std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+
+        let mut params = prefixed(&self.policy_vs, "policy");
+        params.extend(prefixed(&self.target_policy_vs, "target_policy"));
+        params.extend(prefixed(&self.critic_vs, "critic"));
+        params.extend(prefixed(&self.target_critic_vs, "target_critic"));
+        params.push((
+            "duals/temperature".into(),
+            self.duals.temperature_param.detach(),
+        ));
+        params.push(("duals/alpha".into(), self.duals.alpha_param.detach()));
+        Tensor::write_safetensors(&params, tmp.join("params.safetensors"))?;
+
+        let mut moments = Vec::new();
+        for (prefix, opt) in [
+            ("policy", &self.policy_opt),
+            ("critic", &self.critic_opt),
+            ("duals", &self.duals.optimizer),
+        ] {
+            moments.extend(
+                opt.state_tensors()
+                    .into_iter()
+                    .map(|(k, v)| (format!("{prefix}/{k}"), v)),
+            );
+        }
+        Tensor::write_safetensors(&moments, tmp.join("optimizer.safetensors"))?;
+
+        let (temperature, alpha) = self.duals.values();
+        let state = CheckpointState {
+            format_version: FORMAT_VERSION,
+            step: self.step,
+            adam_steps: [
+                self.policy_opt.step_count(),
+                self.critic_opt.step_count(),
+                self.duals.optimizer.step_count(),
+            ],
+            temperature,
+            alpha,
+            config: self.cfg.clone(),
+            dims: self.dims.clone(),
+        };
+        let json_path = tmp.join("state.json");
+        let text =
+            serde_json::to_string_pretty(&state).map_err(|source| CheckpointError::Json {
+                path: json_path.clone(),
+                source,
+            })?;
+        std::fs::write(&json_path, text).map_err(io(&json_path))?;
+
+        let old = parent.join(format!("{name}.old-{}", std::process::id()));
+        let had_old = dir.exists();
+        if had_old {
+            std::fs::rename(dir, &old).map_err(io(dir))?;
+        }
+        std::fs::rename(&tmp, dir).map_err(io(dir))?;
+        if had_old {
+            std::fs::remove_dir_all(&old).map_err(io(&old))?;
+        }
+        Ok(())
+    }
+
+    /// Rebuilds a learner from `dir` on `device` with the stored config and dimensions.
+    pub fn load_checkpoint(dir: &Path, device: Device) -> Result<Self, CheckpointError> {
+        let json_path = dir.join("state.json");
+        let text = std::fs::read_to_string(&json_path).map_err(io(&json_path))?;
+        let state: CheckpointState =
+            serde_json::from_str(&text).map_err(|source| CheckpointError::Json {
+                path: json_path.clone(),
+                source,
+            })?;
+        if state.format_version != FORMAT_VERSION {
+            let message = format!(
+                "format_version {} is not {FORMAT_VERSION}",
+                state.format_version
+            );
+            return Err(CheckpointError::Content {
+                path: json_path,
+                message,
+            });
+        }
+        let mut learner = MoMpoLearner::new(state.config.clone(), state.dims.clone(), device)?;
+        let params_path = dir.join("params.safetensors");
+        let params = read_tensors(&params_path, device)?;
+        load_prefixed(&learner.policy_vs, "policy", &params, &params_path)?;
+        load_prefixed(
+            &learner.target_policy_vs,
+            "target_policy",
+            &params,
+            &params_path,
+        )?;
+        load_prefixed(&learner.critic_vs, "critic", &params, &params_path)?;
+        load_prefixed(
+            &learner.target_critic_vs,
+            "target_critic",
+            &params,
+            &params_path,
+        )?;
+        for (key, dst) in [
+            ("duals/temperature", &mut learner.duals.temperature_param),
+            ("duals/alpha", &mut learner.duals.alpha_param),
+        ] {
+            let src = params
+                .get(key)
+                .filter(|s| s.size() == dst.size())
+                .ok_or_else(|| CheckpointError::Content {
+                    path: params_path.clone(),
+                    message: format!("missing or mis-shaped tensor {key}"),
+                })?;
+            tch::no_grad(|| dst.copy_(src));
+        }
+        let opt_path = dir.join("optimizer.safetensors");
+        let moments = read_tensors(&opt_path, device)?;
+        let [policy_steps, critic_steps, dual_steps] = state.adam_steps;
+        learner
+            .policy_opt
+            .load_state(&moments, "policy/", policy_steps)?;
+        learner
+            .critic_opt
+            .load_state(&moments, "critic/", critic_steps)?;
+        learner
+            .duals
+            .optimizer
+            .load_state(&moments, "duals/", dual_steps)?;
+        learner.step = state.step;
+        Ok(learner)
+    }
+}

@@ -1,0 +1,206 @@
+//! Per-objective Q critics with a shared first layer (appendix A: "a separate critic is
+//! trained for each objective, with a shared first layer").
+//!
+//! Input: observation concatenated with the action (tanh of the action when
+//! `tanh_on_critic_action`, Table 2) or with a one-hot action for discrete spaces (A.2).
+//! The shared first layer `Linear([obs, a]) -> LayerNorm -> tanh` is computed as
+//! `W_obs obs + W_act a + b` (the same function as on the concatenation), so for M
+//! sampled actions per state the observation half is computed once per state. The
+//! C heads (`[C, in, out]` stacked weights) run as one batched matmul per layer, so
+//! all learned objectives are evaluated in one pass.
+//!
+//! Shape legend: N states, M actions per state, D action dims, A discrete actions,
+//! C heads (learned objectives).
+
+use super::ActionKind;
+use super::mlp::{Dense, Norm};
+use crate::config::NetworkConfig;
+use tch::{Kind, Tensor, nn};
+
+/// One layer of all heads at once: weight `[C, in, out]`, bias `[C, 1, out]`.
+#[derive(Debug)]
+struct StackedDense {
+    weight: Tensor,
+    bias: Tensor,
+}
+
+impl StackedDense {
+    fn new(p: &nn::Path, heads: i64, input: i64, output: i64) -> Self {
+        let bound = 1.0 / (input as f64).sqrt();
+        let init = nn::Init::Uniform {
+            lo: -bound,
+            up: bound,
+        };
+        Self {
+            weight: p.var("weight", &[heads, input, output], init),
+            bias: p.var("bias", &[heads, 1, output], init),
+        }
+    }
+
+    /// `[C or 1, P, in] -> [C, P, out]`.
+    fn forward(&self, x: &Tensor) -> Tensor {
+        x.matmul(&self.weight) + &self.bias
+    }
+}
+
+/// C critic heads on a shared first layer.
+#[derive(Debug)]
+pub struct MultiCritic {
+    obs_layer: Dense,
+    action_layer: Dense,
+    norm: Norm,
+    heads: Vec<StackedDense>,
+    action: ActionKind,
+    tanh_action: bool,
+    num_heads: i64,
+}
+
+impl MultiCritic {
+    /// `num_heads` = C learned objectives; parameters under `p`
+    /// (`shared/{obs,action,layer_norm}`, `heads/linear_i`).
+    pub fn new(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        obs_dim: i64,
+        action: ActionKind,
+        num_heads: i64,
+    ) -> Self {
+        let layers = &cfg.critic_layers;
+        let act_dim = action.critic_input_dim();
+        let fan_in = obs_dim + act_dim;
+        let shared = p / "shared";
+        let obs_layer = Dense::new(&(&shared / "obs"), obs_dim, layers[0], fan_in, true);
+        let action_layer = Dense::new(&(&shared / "action"), act_dim, layers[0], fan_in, false);
+        let norm = Norm::new(&(&shared / "layer_norm"), layers[0]);
+        let mut sizes = layers.clone();
+        sizes.push(1);
+        let heads = sizes
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| {
+                StackedDense::new(
+                    &(p / "heads" / format!("linear_{i}")),
+                    num_heads,
+                    w[0],
+                    w[1],
+                )
+            })
+            .collect();
+        Self {
+            obs_layer,
+            action_layer,
+            norm,
+            heads,
+            action,
+            tanh_action: cfg.tanh_on_critic_action,
+            num_heads,
+        }
+    }
+
+    /// Number of heads C.
+    pub fn num_heads(&self) -> i64 {
+        self.num_heads
+    }
+
+    fn action_features(&self, actions: &Tensor) -> Tensor {
+        match self.action {
+            ActionKind::Continuous { .. } if self.tanh_action => actions.tanh(),
+            ActionKind::Continuous { .. } => actions.shallow_clone(),
+            ActionKind::Discrete { n } => actions.one_hot(n).to_kind(Kind::Float),
+        }
+    }
+
+    /// Heads on first-layer features. `[P, h1] -> [P, C]`.
+    fn heads_forward(&self, h: &Tensor) -> Tensor {
+        let mut x = h.unsqueeze(0);
+        let last = self.heads.len() - 1;
+        for (i, layer) in self.heads.iter().enumerate() {
+            x = layer.forward(&x);
+            if i < last {
+                x = x.elu();
+            }
+        }
+        x.squeeze_dim(-1).transpose(0, 1)
+    }
+
+    /// Shared first layer for actions `[.., N, a]` against states `[N, obs]`.
+    fn first_layer(&self, obs: &Tensor, action_features: &Tensor) -> Tensor {
+        let h = self.obs_layer.forward(obs) + self.action_layer.forward(action_features);
+        self.norm.forward_tanh(&h)
+    }
+
+    /// Q for one action per state.
+    /// # Shapes
+    /// `obs [N, obs_dim]`, `actions [N, D] f32 | [N] i64 -> [N, C]`.
+    pub fn forward(&self, obs: &Tensor, actions: &Tensor) -> Tensor {
+        self.heads_forward(&self.first_layer(obs, &self.action_features(actions)))
+    }
+
+    /// Q for M actions per state.
+    /// # Shapes
+    /// `obs [N, obs_dim]`, `actions [M, N, D] f32 | [M, N] i64 -> [M, N, C]`.
+    pub fn forward_samples(&self, obs: &Tensor, actions: &Tensor) -> Tensor {
+        let h = self.first_layer(obs, &self.action_features(actions));
+        let (m, n) = (h.size()[0], h.size()[1]);
+        self.heads_forward(&h.reshape([m * n, -1]))
+            .reshape([m, n, self.num_heads])
+    }
+
+    /// Q for every discrete action (panics for continuous critics).
+    /// # Shapes
+    /// `obs [N, obs_dim] -> [A, N, C]`.
+    pub fn forward_all_actions(&self, obs: &Tensor) -> Tensor {
+        let ActionKind::Discrete { n } = self.action else {
+            panic!("forward_all_actions needs a discrete action space");
+        };
+        let eye = Tensor::eye(n, (Kind::Float, obs.device())).unsqueeze(1);
+        let h = self.first_layer(obs, &eye);
+        let rows = obs.size()[0];
+        self.heads_forward(&h.reshape([n * rows, -1]))
+            .reshape([n, rows, self.num_heads])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    fn cfg() -> NetworkConfig {
+        NetworkConfig {
+            critic_layers: vec![16, 8],
+            ..NetworkConfig::default()
+        }
+    }
+
+    #[test]
+    fn heads_are_independent_networks_on_a_shared_layer() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Continuous { dim: 2 }, 2);
+        let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
+        let act = Tensor::randn([4, 5, 2], (Kind::Float, Device::Cpu));
+        let q = critic.forward_samples(&obs, &act);
+        assert_eq!(q.size(), vec![4, 5, 2]);
+        let one = critic.forward(&obs, &act.get(1));
+        assert!(q.get(1).allclose(&one, 1e-5, 1e-6, false));
+        // Perturbing head 1's last layer changes only column 1.
+        tch::no_grad(|| {
+            let w = vs.variables()["heads.linear_1.bias"].shallow_clone();
+            let _ = w.narrow(0, 1, 1).fill_(5.0);
+        });
+        let q2 = critic.forward_samples(&obs, &act);
+        assert!(q2.select(2, 0).allclose(&q.select(2, 0), 1e-6, 1e-6, false));
+        assert!(!q2.select(2, 1).allclose(&q.select(2, 1), 1e-3, 1e-3, false));
+    }
+
+    #[test]
+    fn one_hot_all_actions_matches_single_actions() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Discrete { n: 4 }, 2);
+        let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
+        let all = critic.forward_all_actions(&obs);
+        assert_eq!(all.size(), vec![4, 5, 2]);
+        let a2 = critic.forward(&obs, &Tensor::full([5], 2, (Kind::Int64, Device::Cpu)));
+        assert!(all.get(2).allclose(&a2, 1e-5, 1e-6, false));
+    }
+}

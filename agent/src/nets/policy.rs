@@ -1,0 +1,235 @@
+//! Policies (appendix A): a diagonal Gaussian for continuous actions and a categorical
+//! distribution over logits for discrete actions (A.2).
+//!
+//! Gaussian parameterisation (documented choice): the head outputs `[mean_raw, std_raw]`;
+//! `mean = tanh(mean_raw)` when `tanh_on_action_mean` (Table 2) else `mean_raw`, and
+//! `std = softplus(std_raw) + sqrt(min_variance)`, so the variance is at least
+//! `min_variance` (Table 2 "minimum variance", "maximum variance unbounded").
+//!
+//! Shape legend: B states, M samples per state, D action dims, A discrete actions.
+
+use super::ActionKind;
+use super::mlp::{Dense, LayerNormMlp};
+use crate::config::NetworkConfig;
+use tch::{Kind, Tensor, nn};
+
+const HALF_LOG_TWO_PI: f64 = 0.918_938_533_204_672_7;
+
+/// Mean and standard deviation of a diagonal Gaussian per state.
+#[derive(Debug)]
+pub struct GaussianParams {
+    /// `[B, D]`.
+    pub mean: Tensor,
+    /// `[B, D]`, positive.
+    pub std: Tensor,
+}
+
+impl GaussianParams {
+    /// `log N(a; mean, diag(std^2))`, summed over D.
+    /// # Shapes
+    /// `actions [.., B, D]` (broadcast against `[B, D]`) `-> [.., B]`.
+    pub fn log_prob(&self, actions: &Tensor) -> Tensor {
+        let z = (actions - &self.mean) / &self.std;
+        let per_dim = z.square() * -0.5 - self.std.log() - HALF_LOG_TWO_PI;
+        per_dim.sum_dim_intlist(-1, false, Kind::Float)
+    }
+
+    /// Draws `m` actions per state. # Shapes `-> [M, B, D]`.
+    pub fn sample(&self, m: i64) -> Tensor {
+        let size = [&[m][..], &self.mean.size()[..]].concat();
+        let noise = Tensor::randn(size.as_slice(), (self.mean.kind(), self.mean.device()));
+        &self.mean + noise * &self.std
+    }
+
+    /// A copy with gradients cut.
+    pub fn detach(&self) -> GaussianParams {
+        GaussianParams {
+            mean: self.mean.detach(),
+            std: self.std.detach(),
+        }
+    }
+}
+
+/// Diagonal Gaussian policy network.
+#[derive(Debug)]
+pub struct GaussianPolicy {
+    torso: LayerNormMlp,
+    head: Dense,
+    action_dim: i64,
+    tanh_mean: bool,
+    min_std: f64,
+}
+
+impl GaussianPolicy {
+    /// Parameters under `p` (`torso/..`, `head/..`).
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, action_dim: i64) -> Self {
+        let torso = LayerNormMlp::new(&(p / "torso"), obs_dim, &cfg.policy_layers);
+        let last = torso.output_dim();
+        let head = Dense::new(&(p / "head"), last, 2 * action_dim, last, true);
+        Self {
+            torso,
+            head,
+            action_dim,
+            tanh_mean: cfg.tanh_on_action_mean,
+            min_std: cfg.min_variance.sqrt(),
+        }
+    }
+
+    /// # Shapes
+    /// `obs [B, obs_dim] -> mean, std [B, D]`.
+    pub fn forward(&self, obs: &Tensor) -> GaussianParams {
+        let out = self.head.forward(&self.torso.forward(obs));
+        let parts = out.split(self.action_dim, -1);
+        let mean = if self.tanh_mean {
+            parts[0].tanh()
+        } else {
+            parts[0].shallow_clone()
+        };
+        let std = parts[1].softplus() + self.min_std;
+        GaussianParams { mean, std }
+    }
+}
+
+/// Categorical policy network over `A` actions (A.2).
+#[derive(Debug)]
+pub struct CategoricalPolicy {
+    torso: LayerNormMlp,
+    head: Dense,
+}
+
+impl CategoricalPolicy {
+    /// Parameters under `p` (`torso/..`, `head/..`).
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, num_actions: i64) -> Self {
+        let torso = LayerNormMlp::new(&(p / "torso"), obs_dim, &cfg.policy_layers);
+        let last = torso.output_dim();
+        let head = Dense::new(&(p / "head"), last, num_actions, last, true);
+        Self { torso, head }
+    }
+
+    /// Unnormalised log-probabilities. # Shapes `obs [B, obs_dim] -> [B, A]`.
+    pub fn forward(&self, obs: &Tensor) -> Tensor {
+        self.head.forward(&self.torso.forward(obs))
+    }
+}
+
+/// Distribution parameters for a batch of states.
+#[derive(Debug)]
+pub enum PolicyOutput {
+    /// Diagonal Gaussian.
+    Gaussian(GaussianParams),
+    /// Logits `[B, A]`.
+    Categorical(Tensor),
+}
+
+impl PolicyOutput {
+    /// Log-probability of taken actions.
+    /// # Shapes
+    /// Gaussian `[B, D] f32`, categorical `[B] i64` `-> [B]`.
+    pub fn log_prob(&self, actions: &Tensor) -> Tensor {
+        match self {
+            PolicyOutput::Gaussian(g) => g.log_prob(actions),
+            PolicyOutput::Categorical(logits) => logits
+                .log_softmax(-1, Kind::Float)
+                .gather(-1, &actions.unsqueeze(-1), false)
+                .squeeze_dim(-1),
+        }
+    }
+}
+
+/// Actions chosen for a batch of states, with the log-probabilities the replay
+/// stores as the behaviour policy's (Retrace, C.2).
+#[derive(Debug)]
+pub struct ActOutput {
+    /// `[B, D] f32` (continuous, unclipped) or `[B] i64` (discrete).
+    pub actions: Tensor,
+    /// `[B] f32`: log b(a|s).
+    pub log_probs: Tensor,
+}
+
+/// A Gaussian or categorical policy network.
+#[derive(Debug)]
+pub enum Policy {
+    /// Continuous actions.
+    Gaussian(GaussianPolicy),
+    /// Discrete actions.
+    Categorical(CategoricalPolicy),
+}
+
+impl Policy {
+    /// Builds the policy for `action` under `p`.
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, action: ActionKind) -> Self {
+        match action {
+            ActionKind::Continuous { dim } => {
+                Policy::Gaussian(GaussianPolicy::new(p, cfg, obs_dim, dim))
+            }
+            ActionKind::Discrete { n } => {
+                Policy::Categorical(CategoricalPolicy::new(p, cfg, obs_dim, n))
+            }
+        }
+    }
+
+    /// # Shapes
+    /// `obs [B, obs_dim]`.
+    pub fn forward(&self, obs: &Tensor) -> PolicyOutput {
+        match self {
+            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward(obs)),
+            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward(obs)),
+        }
+    }
+
+    /// Samples (or, with `deterministic`, takes the mean / most likely) actions.
+    /// Runs without gradient tracking.
+    pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
+        tch::no_grad(|| {
+            let out = self.forward(obs);
+            let actions = match &out {
+                PolicyOutput::Gaussian(g) if deterministic => g.mean.shallow_clone(),
+                PolicyOutput::Gaussian(g) => g.sample(1).squeeze_dim(0),
+                PolicyOutput::Categorical(logits) if deterministic => logits.argmax(-1, false),
+                PolicyOutput::Categorical(logits) => logits
+                    .softmax(-1, Kind::Float)
+                    .multinomial(1, true)
+                    .squeeze_dim(-1),
+            };
+            let log_probs = out.log_prob(&actions);
+            ActOutput { actions, log_probs }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    #[test]
+    fn std_respects_min_variance_and_tanh_mean() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let cfg = NetworkConfig {
+            min_variance: 1e-4,
+            ..NetworkConfig::default()
+        };
+        let policy = GaussianPolicy::new(&vs.root(), &cfg, 3, 2);
+        let obs = Tensor::randn([64, 3], (Kind::Float, Device::Cpu)) * 1e3;
+        let out = policy.forward(&obs);
+        assert!(out.std.min().double_value(&[]) >= 1e-2);
+        assert!(out.mean.abs().max().double_value(&[]) <= 1.0);
+        assert_eq!(out.sample(5).size(), vec![5, 64, 2]);
+    }
+
+    #[test]
+    fn categorical_act_returns_indices_and_log_probs() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let policy = Policy::new(
+            &vs.root(),
+            &NetworkConfig::default(),
+            3,
+            ActionKind::Discrete { n: 4 },
+        );
+        let act = policy.act(&Tensor::zeros([6, 3], (Kind::Float, Device::Cpu)), false);
+        assert_eq!(act.actions.size(), vec![6]);
+        assert_eq!(act.actions.kind(), Kind::Int64);
+        let max = act.log_probs.max().double_value(&[]);
+        assert!(max <= 0.0 && max > -20.0);
+    }
+}

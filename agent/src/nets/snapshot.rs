@@ -1,0 +1,143 @@
+//! Publishing the learner's policy to actors: a plain, engine-free copy of the policy
+//! parameters (`PolicySnapshot`) and a CPU-side `ActorPolicy` that loads it.
+
+use super::ActionKind;
+use super::policy::{ActOutput, Policy};
+use crate::config::NetworkConfig;
+use tch::{Device, Kind, Tensor, nn};
+
+/// One parameter tensor as plain data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedArray {
+    /// VarStore name, e.g. `policy.torso.linear_0.weight`.
+    pub name: String,
+    /// Tensor shape.
+    pub shape: Vec<i64>,
+    /// Row-major f32 values.
+    pub data: Vec<f32>,
+}
+
+/// All policy parameters, sorted by name.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PolicySnapshot {
+    /// Parameters sorted by name.
+    pub tensors: Vec<NamedArray>,
+}
+
+/// A snapshot that does not fit the receiving policy.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SnapshotError {
+    /// Parameter names differ.
+    #[error("policy snapshot names differ: missing {missing:?}, unexpected {unexpected:?}")]
+    Names {
+        /// Expected by the receiver but absent from the snapshot.
+        missing: Vec<String>,
+        /// In the snapshot but unknown to the receiver.
+        unexpected: Vec<String>,
+    },
+    /// A parameter has the wrong shape or data length.
+    #[error(
+        "policy snapshot tensor {name}: expected shape {expected:?}, got {got:?} with {len} values"
+    )]
+    Shape {
+        /// Parameter name.
+        name: String,
+        /// Receiver's shape.
+        expected: Vec<i64>,
+        /// Snapshot's shape.
+        got: Vec<i64>,
+        /// Snapshot's data length.
+        len: usize,
+    },
+}
+
+impl PolicySnapshot {
+    /// Copies every variable of `vs` to host memory.
+    pub fn from_var_store(vs: &nn::VarStore) -> Self {
+        let mut tensors: Vec<NamedArray> = vs
+            .variables()
+            .into_iter()
+            .map(|(name, t)| {
+                let t = t
+                    .detach()
+                    .to_device(Device::Cpu)
+                    .to_kind(Kind::Float)
+                    .contiguous();
+                let data = Vec::<f32>::try_from(&t.flatten(0, -1)).expect("f32 tensor converts");
+                NamedArray {
+                    name,
+                    shape: t.size(),
+                    data,
+                }
+            })
+            .collect();
+        tensors.sort_by(|a, b| a.name.cmp(&b.name));
+        Self { tensors }
+    }
+
+    /// Overwrites the variables of `vs` (same names and shapes required).
+    pub fn load_into(&self, vs: &nn::VarStore) -> Result<(), SnapshotError> {
+        let vars = vs.variables();
+        let missing: Vec<String> = vars
+            .keys()
+            .filter(|k| !self.tensors.iter().any(|t| &t.name == *k))
+            .cloned()
+            .collect();
+        let unexpected: Vec<String> = self
+            .tensors
+            .iter()
+            .filter(|t| !vars.contains_key(&t.name))
+            .map(|t| t.name.clone())
+            .collect();
+        if !missing.is_empty() || !unexpected.is_empty() {
+            return Err(SnapshotError::Names {
+                missing,
+                unexpected,
+            });
+        }
+        for t in &self.tensors {
+            let mut var = vars[&t.name].shallow_clone();
+            let numel: i64 = t.shape.iter().product();
+            if var.size() != t.shape || numel as usize != t.data.len() {
+                return Err(SnapshotError::Shape {
+                    name: t.name.clone(),
+                    expected: var.size(),
+                    got: t.shape.clone(),
+                    len: t.data.len(),
+                });
+            }
+            let src = Tensor::from_slice(&t.data)
+                .reshape(t.shape.as_slice())
+                .to_device(var.device());
+            tch::no_grad(|| var.copy_(&src));
+        }
+        Ok(())
+    }
+}
+
+/// A policy copy for actors (no gradients), fed by `PolicySnapshot`s.
+#[derive(Debug)]
+pub struct ActorPolicy {
+    vs: nn::VarStore,
+    policy: Policy,
+}
+
+impl ActorPolicy {
+    /// A policy with the learner's layout (`policy/..` names) on `device`.
+    pub fn new(cfg: &NetworkConfig, obs_dim: i64, action: ActionKind, device: Device) -> Self {
+        let vs = nn::VarStore::new(device);
+        let policy = Policy::new(&(vs.root() / "policy"), cfg, obs_dim, action);
+        Self { vs, policy }
+    }
+
+    /// Replaces the parameters.
+    pub fn load(&mut self, snapshot: &PolicySnapshot) -> Result<(), SnapshotError> {
+        snapshot.load_into(&self.vs)
+    }
+
+    /// Samples (or takes the mode of) actions. # Shapes `obs [B, obs_dim]`.
+    pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
+        self.policy
+            .act(&obs.to_device(self.vs.device()), deterministic)
+    }
+}

@@ -1,0 +1,144 @@
+//! Behavioural tests of MO-MPO policy improvement on a one-state bandit with a 1-D
+//! continuous action and two objectives in conflict, Q_1(a) = -(a-1)^2 and
+//! Q_2(a) = -(a+1)^2, given in closed form (a bandit's Q is its reward).
+//!
+//! Tests that seed libtorch's global RNG hold `RNG` so they do not interleave.
+
+use agent::algo::{LearnerDims, MoMpoLearner};
+use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
+use agent::nets::ActionKind;
+use std::sync::Mutex;
+use tch::{Device, Kind, Tensor};
+
+static RNG: Mutex<()> = Mutex::new(());
+
+/// Serialises the tests and uses one libtorch thread (these networks are tiny; more
+/// threads only add synchronisation cost on a shared machine).
+fn exclusive() -> std::sync::MutexGuard<'static, ()> {
+    let guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    tch::manual_seed(0);
+    guard
+}
+
+const STATES: i64 = 32;
+
+fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> MoMpoLearner {
+    let mut cfg = LearnerConfig {
+        objectives: vec![
+            ObjectiveConfig {
+                name: "right".into(),
+                epsilon: eps[0],
+                source: ObjectiveSource::Learned,
+            },
+            ObjectiveConfig {
+                name: "left".into(),
+                epsilon: eps[1],
+                source: ObjectiveSource::Learned,
+            },
+        ],
+        network: NetworkConfig {
+            policy_layers: vec![16],
+            critic_layers: vec![8],
+            tanh_on_action_mean: false,
+            ..NetworkConfig::default()
+        },
+        seed: 1,
+        ..LearnerConfig::default()
+    };
+    cfg.mpo.learning_rate = 3e-3;
+    // Faster duals than Acme's 1e-2 so eta_k settles within a few hundred steps.
+    cfg.mpo.dual_learning_rate = 0.1;
+    cfg.mpo.beta_mean = beta_mean;
+    cfg.mpo.target_update_period = target_period;
+    let dims = LearnerDims {
+        obs_dim: 1,
+        action: ActionKind::Continuous { dim: 1 },
+        reward_names: vec!["right".into(), "left".into()],
+    };
+    MoMpoLearner::new(cfg, dims, Device::Cpu).unwrap()
+}
+
+fn q_values(actions: &Tensor) -> Tensor {
+    let a = actions.squeeze_dim(-1);
+    Tensor::stack(&[-(&a - 1.0).square(), -(&a + 1.0).square()], -1)
+}
+
+fn obs() -> Tensor {
+    Tensor::zeros([STATES, 1], (Kind::Float, Device::Cpu))
+}
+
+/// Mean action of the policy averaged over the last `tail` of `steps` updates.
+fn fitted_mean(learner: &mut MoMpoLearner, steps: usize, tail: usize) -> f64 {
+    let mut sum = 0.0;
+    for i in 0..steps {
+        learner.improve_policy_with(&obs(), q_values);
+        if i >= steps - tail {
+            sum += learner
+                .act(&obs().narrow(0, 0, 1), true)
+                .actions
+                .double_value(&[0, 0]);
+        }
+    }
+    sum / tail as f64
+}
+
+#[test]
+fn preference_follows_the_epsilon_ratio() {
+    let _guard = exclusive();
+    let means: Vec<f64> = [0.5, 1.0, 4.0]
+        .iter()
+        .map(|ratio| fitted_mean(&mut bandit([0.01 * ratio, 0.01], 5e-3, 10), 600, 100))
+        .collect();
+    assert!(
+        means[0] < means[1] && means[1] < means[2],
+        "mean action should grow with eps1/eps2: {means:?}"
+    );
+    // eps1 < eps2 leans to objective 2 (a < 0), equal is a compromise, eps1 = 4 eps2 leans clearly to 1.
+    assert!(
+        means[0] < 0.0 && means[1].abs() < 0.15 && means[2] > 0.3,
+        "{means:?}"
+    );
+}
+
+#[test]
+fn zero_epsilon_objective_has_no_influence() {
+    let _guard = exclusive();
+    // Objective 2 (optimum -1) with eps = 0 must not pull: the policy goes to +1.
+    let only_right = fitted_mean(&mut bandit([0.05, 0.0], 5e-3, 10), 800, 100);
+    assert!(
+        (only_right - 1.0).abs() < 0.2,
+        "eps_2 = 0: expected the optimum of objective 1, got {only_right}"
+    );
+    let only_left = fitted_mean(&mut bandit([0.0, 0.05], 5e-3, 10), 800, 100);
+    assert!(
+        (only_left + 1.0).abs() < 0.2,
+        "eps_1 = 0: expected the optimum of objective 2, got {only_left}"
+    );
+}
+
+#[test]
+fn kl_to_the_target_policy_stays_near_beta() {
+    let _guard = exclusive();
+    let beta = 1e-3;
+    // Both objectives pull the same way at first (eps_2 small), so the trust region binds.
+    let mut learner = bandit([0.1, 0.001], beta, 50);
+    let mut kls = Vec::new();
+    for _ in 0..300 {
+        let (_, kl) = learner.improve_policy_with(&obs(), q_values);
+        kls.push(f64::from(kl[0]));
+    }
+    let settled = &kls[100..];
+    let mean = settled.iter().sum::<f64>() / settled.len() as f64;
+    let max = settled.iter().cloned().fold(0.0, f64::max);
+    assert!(
+        mean <= 2.0 * beta,
+        "mean KL_mu {mean} exceeds 2 beta = {}",
+        2.0 * beta
+    );
+    assert!(max <= 5.0 * beta, "max KL_mu {max} exceeds 5 beta");
+    assert!(
+        mean >= 0.2 * beta,
+        "the constraint should be active, mean KL_mu = {mean}"
+    );
+}

@@ -1,0 +1,115 @@
+//! Small learners and random snippet batches shared by the integration tests.
+#![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
+
+use agent::algo::{LearnerDims, MoMpoLearner, SnippetBatch};
+use agent::config::{
+    Algorithm, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
+};
+use agent::nets::ActionKind;
+use tch::{Device, Kind, Tensor};
+
+pub const OBS: i64 = 3;
+
+pub fn small_config() -> LearnerConfig {
+    let mut cfg = LearnerConfig {
+        network: NetworkConfig {
+            policy_layers: vec![16, 16],
+            critic_layers: vec![32, 16],
+            ..NetworkConfig::default()
+        },
+        seed: 5,
+        ..LearnerConfig::default()
+    };
+    cfg.mpo.num_samples = 6;
+    cfg.mpo.retrace_length = 3;
+    cfg.mpo.batch_size = 16;
+    cfg.mpo.learning_rate = 1e-3;
+    cfg.mpo.target_update_period = 4;
+    cfg
+}
+
+/// Continuous MO-MPO: `task` learned, `action_norm` closed form.
+pub fn continuous_learner() -> MoMpoLearner {
+    continuous_learner_with(|_| {})
+}
+
+/// `continuous_learner` with config changes.
+pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> MoMpoLearner {
+    let mut cfg = small_config();
+    change(&mut cfg);
+    cfg.objectives = vec![
+        ObjectiveConfig {
+            name: "task".into(),
+            epsilon: 0.1,
+            source: ObjectiveSource::Learned,
+        },
+        ObjectiveConfig {
+            name: "action_norm".into(),
+            epsilon: 0.01,
+            source: ObjectiveSource::ActionNorm,
+        },
+    ];
+    let dims = LearnerDims {
+        obs_dim: OBS,
+        action: ActionKind::Continuous { dim: 2 },
+        reward_names: vec!["task".into(), "action_norm".into()],
+    };
+    MoMpoLearner::new(cfg, dims, Device::Cpu).unwrap()
+}
+
+/// Discrete scalarized MPO with one-step TD (A.2 settings).
+pub fn discrete_scalarized_learner() -> MoMpoLearner {
+    let mut cfg = small_config();
+    cfg.algorithm = Algorithm::ScalarizedMpo {
+        epsilon: 0.1,
+        weights: vec![
+            ObjectiveWeight {
+                name: "treasure".into(),
+                weight: 0.7,
+            },
+            ObjectiveWeight {
+                name: "time".into(),
+                weight: 0.3,
+            },
+        ],
+    };
+    cfg.mpo.retrace_length = 1;
+    cfg.mpo.discount = 0.999;
+    let dims = LearnerDims {
+        obs_dim: OBS,
+        action: ActionKind::Discrete { n: 4 },
+        reward_names: vec!["treasure".into(), "time".into()],
+    };
+    MoMpoLearner::new(cfg, dims, Device::Cpu).unwrap()
+}
+
+/// A random batch matching `learner`, with a terminal in snippet 0.
+pub fn random_batch(learner: &MoMpoLearner, seed: i64) -> SnippetBatch {
+    tch::manual_seed(seed);
+    let (t, b) = (
+        learner.config().mpo.retrace_length as i64,
+        learner.config().mpo.batch_size as i64,
+    );
+    let dims = learner.dims();
+    let opts = (Kind::Float, Device::Cpu);
+    let observations = Tensor::randn([t + 1, b, dims.obs_dim], opts);
+    let obs_flat = observations.narrow(0, 0, t).reshape([t * b, dims.obs_dim]);
+    let act = learner.act(&obs_flat, false);
+    let actions = match dims.action {
+        ActionKind::Continuous { dim } => act.actions.reshape([t, b, dim]),
+        ActionKind::Discrete { .. } => act.actions.reshape([t, b]),
+    };
+    let k = dims.reward_names.len() as i64;
+    let rewards = Tensor::randn([t, b, k], opts);
+    let discounts = Tensor::ones([t, b], opts);
+    let _ = discounts.get(0).narrow(0, 0, 1).fill_(0.0);
+    // Behaviour log-probs slightly off the policy's so some c < 1.
+    let behaviour_log_probs = act.log_probs.reshape([t, b]) + Tensor::randn([t, b], opts) * 0.3;
+    SnippetBatch {
+        observations,
+        actions,
+        rewards,
+        discounts,
+        behaviour_log_probs,
+    }
+}

@@ -1,0 +1,245 @@
+//! Golden-value tests: the Rust E-step, M-step, Retrace and Gaussian log-likelihood
+//! against values computed independently in PyTorch by `golden/make_golden.py`
+//! (float64; the JSON files are committed, so no Python is needed here).
+
+use agent::algo::dual::positive;
+use agent::algo::estep::{exact_estep, sampled_estep};
+use agent::algo::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
+use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
+use agent::nets::GaussianParams;
+use serde_json::Value;
+use tch::{Kind, Tensor};
+
+fn golden(name: &str) -> Value {
+    let path = format!("{}/tests/golden/{name}.json", env!("CARGO_MANIFEST_DIR"));
+    serde_json::from_str(&std::fs::read_to_string(&path).expect("golden file")).expect("valid json")
+}
+
+fn tensor(v: &Value) -> Tensor {
+    let shape: Vec<i64> = v["shape"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_i64().unwrap())
+        .collect();
+    let data: Vec<f32> = v["data"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap() as f32)
+        .collect();
+    Tensor::from_slice(&data).reshape(shape.as_slice())
+}
+
+fn vector(v: &Value) -> Tensor {
+    let data: Vec<f32> = v
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap() as f32)
+        .collect();
+    Tensor::from_slice(&data)
+}
+
+fn scalar(v: &Value) -> f64 {
+    v.as_f64().unwrap()
+}
+
+#[track_caller]
+fn assert_close(got: &Tensor, want: &Tensor, what: &str) {
+    assert_eq!(got.size(), want.size(), "{what}: shape");
+    let err = (got.to_kind(Kind::Double) - want.to_kind(Kind::Double)).abs();
+    let tol = want.to_kind(Kind::Double).abs() * 1e-5 + 1e-5;
+    let bad = (err - tol).max().double_value(&[]);
+    assert!(bad <= 0.0, "{what}: got {got:?}, want {want:?}");
+}
+
+#[track_caller]
+fn assert_close_scalar(got: f64, want: f64, what: &str) {
+    assert!(
+        (got - want).abs() <= 1e-5 + 1e-5 * want.abs(),
+        "{what}: got {got}, want {want}"
+    );
+}
+
+#[test]
+fn sampled_estep_weights_loss_and_dual_gradient() {
+    let g = golden("estep_sampled");
+    let param = vector(&g["temperature_param"]).set_requires_grad(true);
+    let eta = positive(&param);
+    assert_close(&eta, &vector(&g["temperature"]), "eta from its parameter");
+    let out = sampled_estep(&tensor(&g["q"]), &eta, &vector(&g["epsilon"]));
+    assert_close(&out.weights, &tensor(&g["weights"]), "weights");
+    assert_close_scalar(
+        out.temperature_loss.double_value(&[]),
+        scalar(&g["loss"]),
+        "temperature loss",
+    );
+    out.temperature_loss.backward();
+    assert_close(&param.grad(), &vector(&g["grad_param"]), "d loss / d param");
+}
+
+#[test]
+fn categorical_estep_weights_loss_and_dual_gradient() {
+    let g = golden("estep_categorical");
+    let param = vector(&g["temperature_param"]).set_requires_grad(true);
+    let log_prior = tensor(&g["prior"]).log().transpose(0, 1);
+    let out = exact_estep(
+        &tensor(&g["q"]),
+        &log_prior,
+        &positive(&param),
+        &vector(&g["epsilon"]),
+    );
+    assert_close(&out.weights, &tensor(&g["weights"]), "weights");
+    assert_close_scalar(
+        out.temperature_loss.double_value(&[]),
+        scalar(&g["loss"]),
+        "temperature loss",
+    );
+    out.temperature_loss.backward();
+    assert_close(&param.grad(), &vector(&g["grad_param"]), "d loss / d param");
+}
+
+#[test]
+fn gaussian_log_likelihood() {
+    let g = golden("mstep_gaussian");
+    let dist = GaussianParams {
+        mean: tensor(&g["online_mean"]),
+        std: tensor(&g["online_std"]),
+    };
+    assert_close(
+        &dist.log_prob(&tensor(&g["actions"])),
+        &tensor(&g["log_prob_online"]),
+        "log N(a; mu, sigma)",
+    );
+}
+
+#[test]
+fn decoupled_kl_terms_and_multiplier_losses() {
+    let g = golden("mstep_gaussian");
+    let online = GaussianParams {
+        mean: tensor(&g["online_mean"]).set_requires_grad(true),
+        std: tensor(&g["online_std"]).set_requires_grad(true),
+    };
+    let target = GaussianParams {
+        mean: tensor(&g["target_mean"]),
+        std: tensor(&g["target_std"]),
+    };
+    let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
+    let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
+    let region = TrustRegion {
+        alpha_mean: &alpha_mean,
+        alpha_cov: &alpha_cov,
+        beta_mean: scalar(&g["beta_mean"]),
+        beta_cov: scalar(&g["beta_cov"]),
+    };
+    let out = gaussian_mstep(
+        &online,
+        &target,
+        &tensor(&g["actions"]),
+        &tensor(&g["weights"]),
+        &region,
+    );
+    assert_close_scalar(
+        out.kl_mean.double_value(&[]),
+        scalar(&g["kl_mean"]),
+        "KL_mu",
+    );
+    assert_close_scalar(
+        out.kl_cov.double_value(&[]),
+        scalar(&g["kl_cov"]),
+        "KL_Sigma",
+    );
+    assert_close_scalar(
+        out.policy_loss.double_value(&[]),
+        scalar(&g["policy_loss"]),
+        "policy loss",
+    );
+    assert_close_scalar(
+        out.alpha_loss.double_value(&[]),
+        scalar(&g["alpha_loss"]),
+        "alpha loss",
+    );
+    (out.policy_loss + out.alpha_loss).backward();
+    assert_close_scalar(
+        alpha_mean.grad().double_value(&[]),
+        scalar(&g["grad_alpha_mean"]),
+        "d/d alpha_mu = beta_mu - KL_mu",
+    );
+    assert_close_scalar(
+        alpha_cov.grad().double_value(&[]),
+        scalar(&g["grad_alpha_cov"]),
+        "d/d alpha_Sigma",
+    );
+    // Stop-gradients: alpha enters the policy loss only as a constant, the KL enters
+    // the alpha loss only as a constant, so the policy gradients match PyTorch's.
+    assert_close(
+        &online.mean.grad(),
+        &tensor(&g["grad_online_mean"]),
+        "d/d mu",
+    );
+    assert_close(
+        &online.std.grad(),
+        &tensor(&g["grad_online_std"]),
+        "d/d sigma",
+    );
+}
+
+#[test]
+fn categorical_mstep_losses() {
+    let g = golden("mstep_categorical");
+    let logits = tensor(&g["online_logits"]).set_requires_grad(true);
+    let alpha = Tensor::from(scalar(&g["alpha"]) as f32).set_requires_grad(true);
+    let out = categorical_mstep(
+        &logits,
+        &tensor(&g["target_logits"]),
+        &tensor(&g["weights"]),
+        &alpha,
+        scalar(&g["beta"]),
+    );
+    assert_close_scalar(out.kl.double_value(&[]), scalar(&g["kl"]), "KL");
+    assert_close_scalar(
+        out.policy_loss.double_value(&[]),
+        scalar(&g["policy_loss"]),
+        "policy loss",
+    );
+    assert_close_scalar(
+        out.alpha_loss.double_value(&[]),
+        scalar(&g["alpha_loss"]),
+        "alpha loss",
+    );
+    (out.policy_loss + out.alpha_loss).backward();
+    assert_close_scalar(
+        alpha.grad().double_value(&[]),
+        scalar(&g["grad_alpha"]),
+        "d/d alpha",
+    );
+    assert_close(
+        &logits.grad(),
+        &tensor(&g["grad_online_logits"]),
+        "d/d logits",
+    );
+}
+
+#[test]
+fn retrace_targets_with_terminal_and_truncated_traces() {
+    let g = golden("retrace");
+    let c = importance_weights(
+        &tensor(&g["target_log_probs"]),
+        &tensor(&g["behaviour_log_probs"]),
+    );
+    assert_close(&c, &tensor(&g["importance"]), "c = min(1, pi/b)");
+    assert!(
+        c.min().double_value(&[]) < 0.5,
+        "the snippet exercises c < 1"
+    );
+    let targets = retrace_targets(&RetraceInputs {
+        q_taken: &tensor(&g["q_taken"]),
+        v_next: &tensor(&g["v_next"]),
+        rewards: &tensor(&g["rewards"]),
+        discounts: &tensor(&g["discounts"]),
+        importance: &c,
+        gamma: scalar(&g["gamma"]),
+    });
+    assert_close(&targets, &tensor(&g["targets"]), "Q_ret");
+}
