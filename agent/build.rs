@@ -19,12 +19,16 @@ fn torch_lib_dir() -> Option<PathBuf> {
     if let Ok(lib) = std::env::var("LIBTORCH_LIB") {
         return Some(PathBuf::from(lib));
     }
-    if std::env::var_os("LIBTORCH_USE_PYTORCH").is_none() {
-        if let Ok(root) = std::env::var("LIBTORCH") {
-            return Some(PathBuf::from(root).join("lib"));
-        }
+    if std::env::var_os("LIBTORCH_USE_PYTORCH").is_none()
+        && let Ok(root) = std::env::var("LIBTORCH")
+    {
+        return Some(PathBuf::from(root).join("lib"));
     }
-    let python = if std::env::var_os("VIRTUAL_ENV").is_some() { "python" } else { "python3" };
+    let python = if std::env::var_os("VIRTUAL_ENV").is_some() {
+        "python"
+    } else {
+        "python3"
+    };
     let output = Command::new(python)
         .arg("-c")
         .arg("import os, torch; print(os.path.join(os.path.dirname(torch.__file__), 'lib'))")
@@ -39,11 +43,19 @@ fn torch_lib_dir() -> Option<PathBuf> {
 
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
-    for var in ["LIBTORCH", "LIBTORCH_LIB", "LIBTORCH_USE_PYTORCH", "VIRTUAL_ENV", "PATH"] {
+    for var in [
+        "LIBTORCH",
+        "LIBTORCH_LIB",
+        "LIBTORCH_USE_PYTORCH",
+        "VIRTUAL_ENV",
+        "PATH",
+    ] {
         println!("cargo:rerun-if-env-changed={var}");
     }
     let Some(lib) = torch_lib_dir() else {
-        println!("cargo:warning=agent/build.rs: could not locate torch/lib; set LD_LIBRARY_PATH to run");
+        println!(
+            "cargo:warning=agent/build.rs: could not locate torch/lib; set LD_LIBRARY_PATH to run"
+        );
         return;
     };
     println!("cargo:rustc-link-arg=-Wl,-rpath,{}", lib.display());

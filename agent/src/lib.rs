@@ -16,11 +16,21 @@
 //! Shape legend used in docs: B batch (env instances or replay samples), M sampled
 //! actions per state, D action dims, K objectives, T snippet length.
 
+pub mod actor;
 pub mod algo;
 pub mod checkpoint;
 pub mod config;
 pub mod device;
 pub mod env;
 pub mod error;
+pub mod learner;
+pub mod metrics;
 pub mod nets;
+pub mod pareto;
+pub mod plot;
+pub mod replay;
+pub mod run_config;
+pub mod schedule;
 pub mod spec;
+pub mod sweep;
+pub mod train;

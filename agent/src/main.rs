@@ -1,11 +1,15 @@
 //! `agent`: command-line entry point (the only place that uses `anyhow`).
 #![allow(clippy::print_stdout, reason = "a CLI prints its results")]
 
+use std::path::PathBuf;
 use std::time::Instant;
 
 use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
+use agent::run_config::TrainConfig;
+use agent::sweep::{SweepConfig, sweep};
+use agent::train::{TrainOptions, TrainSummary, evaluate_checkpoint, train};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -21,6 +25,42 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Train one agent (MO-MPO or scalarized MPO) from a TOML config.
+    Train {
+        /// Run config, e.g. configs/mompo/dst.toml.
+        #[arg(long, required_unless_present = "resume")]
+        config: Option<PathBuf>,
+        /// Continue the run in this directory from its latest checkpoint (reads its config.toml).
+        #[arg(long)]
+        resume: Option<PathBuf>,
+        /// Server address host:port (repeatable); overrides the config's servers.
+        #[arg(long = "server")]
+        servers: Vec<String>,
+        /// Override run.total_env_steps.
+        #[arg(long)]
+        total_env_steps: Option<u64>,
+    },
+    /// Train every setting of an ε (or weight) grid, evaluate, and write the Pareto front.
+    Sweep {
+        /// Sweep file, e.g. configs/sweeps/dst.toml.
+        #[arg(long)]
+        config: PathBuf,
+        /// Server address host:port (repeatable); default: the base config's, or a local server.
+        #[arg(long = "server")]
+        servers: Vec<String>,
+    },
+    /// Evaluate a checkpoint with the deterministic policy; returns come from the server.
+    Eval {
+        /// A run directory (its latest checkpoint) or one checkpoints/step_<n> directory.
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Episodes to run.
+        #[arg(long, default_value_t = 10)]
+        episodes: usize,
+        /// Server address host:port (repeatable); default: a local server.
+        #[arg(long = "server")]
+        servers: Vec<String>,
+    },
     /// List the envs a server offers, with their objectives.
     Envs {
         /// Server address host:port. Omitted: start a local server for the listing.
@@ -54,6 +94,61 @@ async fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Train { config, resume, servers, total_env_steps } => {
+            let path = match (&resume, config) {
+                (Some(dir), _) => dir.join("config.toml"),
+                (None, Some(path)) => path,
+                (None, None) => unreachable!("clap requires --config or --resume"),
+            };
+            let mut cfg = TrainConfig::load(&path).with_context(|| format!("loading {}", path.display()))?;
+            if let Some(n) = total_env_steps {
+                cfg.run.total_env_steps = n;
+            }
+            if !servers.is_empty() {
+                cfg.env.servers = servers;
+            }
+            let (addresses, local) = server_addresses(&cfg.env.servers).await?;
+            let summary = train(cfg, &addresses, TrainOptions { resume, progress: true }).await;
+            if let Some(local) = local {
+                local.stop().await?;
+            }
+            print_summary(&summary?);
+        }
+        Command::Sweep { config, servers } => {
+            let (sweep_cfg, base) = SweepConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+            let configured = if servers.is_empty() { base.env.servers.clone() } else { servers };
+            let (addresses, local) = server_addresses(&configured).await?;
+            let result = sweep(&sweep_cfg, &base, &addresses, true).await;
+            if let Some(local) = local {
+                local.stop().await?;
+            }
+            let s = result?;
+            let names = s.objectives.join(", ");
+            println!("\nsweep {} ({} runs, {:.0} s wall)", s.dir.display(), s.points.len(), s.wall_seconds);
+            println!("  {:<44} {:>5}  eval return [{names}]  front", "setting", "seed");
+            for p in &s.points {
+                let setting: Vec<String> = p.setting.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                let mark = if p.on_front { "*" } else { "" };
+                println!("  {:<44} {:>5}  {:<28} {mark}", setting.join(" "), p.seed, format_vector(&p.eval_return));
+            }
+            let reference = format_vector(&s.reference_point);
+            println!("  hypervolume {:.2} (undiscounted, reference {reference}); EUM {:.3}", s.hypervolume, s.expected_utility);
+            println!("  wrote points.csv front.csv summary.json front.png/svg in {}", s.dir.display());
+        }
+        Command::Eval { checkpoint, episodes, servers } => {
+            let (addresses, local) = server_addresses(&servers).await?;
+            let report = evaluate_checkpoint(&checkpoint, &addresses, episodes).await;
+            if let Some(local) = local {
+                local.stop().await?;
+            }
+            let r = report?;
+            println!("checkpoint {} ({} episodes, deterministic policy)", r.checkpoint.display(), r.episodes.len());
+            println!("  objectives [{}]", r.objectives.join(", "));
+            for e in &r.episodes {
+                println!("  env {:>2} length {:>5}  return {}  discounted {}", e.env_index, e.length, format_vector(&e.episode_return), format_vector(&e.discounted_return));
+            }
+            println!("  mean return {}  mean discounted return (γ={}) {}", format_vector(&r.mean_return), r.discount, format_vector(&r.mean_discounted_return));
+        }
         Command::Envs { server } => {
             let (client, local) = connect(server).await?;
             print_envs(&client).await?;
@@ -84,6 +179,30 @@ async fn connect(server: Option<String>) -> Result<(EnvClient, Option<LocalServe
             Ok((EnvClient::connect(local.address()).await?, Some(local)))
         }
     }
+}
+
+/// The configured servers, or a local one started for this command.
+async fn server_addresses(configured: &[String]) -> Result<(Vec<String>, Option<LocalServer>)> {
+    if !configured.is_empty() {
+        return Ok((configured.to_vec(), None));
+    }
+    let local = LocalServer::start(&ServerOptions::default()).await.context("starting a local env_server")?;
+    tracing::info!(address = local.address(), "started local env_server");
+    Ok((vec![local.address().to_string()], Some(local)))
+}
+
+fn print_summary(s: &TrainSummary) {
+    let names = s.objectives.join(", ");
+    println!("\nrun {}", s.run_dir.display());
+    println!("  env steps {}  learner steps {}  episodes {}  wall {:.1} s", s.env_steps, s.learner_steps, s.episodes, s.wall_seconds);
+    println!("  objectives             [{names}]");
+    println!("  recent training return {}", format_vector(&s.recent_train_return));
+    let eta: Vec<f64> = s.temperature.iter().map(|&t| f64::from(t)).collect();
+    println!("  temperatures eta_k     {}", format_vector(&eta));
+    println!("  eval return ({} episodes, deterministic policy)", s.eval_episodes.len());
+    println!("    undiscounted         {}", format_vector(&s.eval_return));
+    println!("    discounted (γ={})  {}", s.eval_discount, format_vector(&s.eval_discounted_return));
+    println!("  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg checkpoints/");
 }
 
 async fn print_envs(client: &EnvClient) -> Result<()> {

@@ -72,8 +72,16 @@ fn status_kind(code: tonic::Code) -> StatusKind {
     }
 }
 
+/// UNAVAILABLE, or a connection that broke under a call: tonic reports the latter as
+/// UNKNOWN with the transport error as its source (a server's own UNKNOWN has none).
+fn is_unavailable(status: &tonic::Status) -> bool {
+    status.code() == tonic::Code::Unavailable
+        || (status.code() == tonic::Code::Unknown && std::error::Error::source(status).is_some())
+}
+
 fn status_error(call: &'static str, status: &tonic::Status) -> EnvError {
-    EnvError::Status { call, code: status_kind(status.code()), message: status.message().to_string() }
+    let code = if is_unavailable(status) { StatusKind::Unavailable } else { status_kind(status.code()) };
+    EnvError::Status { call, code, message: status.message().to_string() }
 }
 
 /// A connection to one env server.
@@ -132,7 +140,7 @@ impl EnvClient {
         loop {
             match f(self.client.clone(), request.clone()).await {
                 Ok(response) => return Ok(response.into_inner()),
-                Err(status) if status.code() == tonic::Code::Unavailable && attempt + 1 < self.retry.max_attempts => {
+                Err(status) if is_unavailable(&status) && attempt + 1 < self.retry.max_attempts => {
                     tracing::warn!(call = name, attempt, message = status.message(), "server unavailable; retrying");
                     tokio::time::sleep(self.retry.backoff(attempt)).await;
                     attempt += 1;

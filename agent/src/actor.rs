@@ -1,0 +1,222 @@
+//! Actors (Algorithm 2): step a remote env session with the latest published
+//! policy, record behaviour log-probabilities, and feed T-step snippets to the replay.
+//!
+//! Shapes: B instances per session, O observation size, D action dims, K objectives.
+//! Continuous actions are sampled unclipped (that is what the replay stores and the
+//! critic sees); the env receives them clipped to [-1, 1] and mapped linearly onto a
+//! finite Box, e.g. [-2, 2] for Pendulum. A session lost to a server restart is
+//! made again and the run continues.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tch::{Kind, Tensor};
+use tokio::sync::watch;
+
+use crate::env::grpc::{EnvClient, RemoteEnv};
+use crate::env::{Env, HostTensor, MakeOptions};
+use crate::error::{EnvError, StatusKind};
+use crate::metrics::{EpisodeRecord, RunFiles};
+use crate::nets::{ActorPolicy, PolicySnapshot};
+use crate::replay::adder::{AdderStep, SnippetAdder};
+use crate::replay::SnippetLayout;
+use crate::schedule::Schedule;
+use crate::spec::Space;
+
+/// What one actor needs.
+#[derive(Debug)]
+pub struct ActorContext {
+    /// Actor number (seeds and logs).
+    pub id: usize,
+    /// Server connection.
+    pub client: EnvClient,
+    /// Session to make (and to make again after a server restart).
+    pub make: MakeOptions,
+    /// The acting policy (parameters arrive through `params`).
+    pub policy: ActorPolicy,
+    /// Latest published policy parameters.
+    pub params: watch::Receiver<Arc<PolicySnapshot>>,
+    /// Snippet sizes of the replay.
+    pub layout: SnippetLayout,
+    /// Rate limiter and replay.
+    pub schedule: Arc<Schedule>,
+    /// Episode log.
+    pub files: Arc<RunFiles>,
+    /// Stop after this many env steps in total.
+    pub total_env_steps: u64,
+}
+
+/// Maps policy actions to env actions.
+#[derive(Debug, Clone)]
+enum ActionMap {
+    Continuous { low: Vec<f32>, high: Vec<f32> },
+    Discrete { start: i64 },
+}
+
+impl ActionMap {
+    fn new(space: &Space) -> Result<Self, EnvError> {
+        match space {
+            Space::Box(b) => Ok(ActionMap::Continuous {
+                low: b.low.iter().map(|&v| v as f32).collect(),
+                high: b.high.iter().map(|&v| v as f32).collect(),
+            }),
+            Space::Discrete(d) => Ok(ActionMap::Discrete { start: d.start }),
+            Space::Dict(_) => Err(EnvError::BadInput {
+                field: "action_space".into(),
+                expected: "Box or Discrete".into(),
+                got: "Dict".into(),
+            }),
+        }
+    }
+
+    /// Env action tensor and the per-instance replay action rows.
+    fn apply(&self, actions: &Tensor, b: usize) -> (HostTensor, Vec<f32>) {
+        match self {
+            ActionMap::Continuous { low, high } => {
+                let raw = Vec::<f32>::try_from(&actions.to_kind(Kind::Float).flatten(0, -1)).expect("f32 actions");
+                let d = low.len();
+                let env: Vec<f32> = raw
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &a)| {
+                        let (lo, hi) = (low[i % d], high[i % d]);
+                        let a = a.clamp(-1.0, 1.0);
+                        if lo.is_finite() && hi.is_finite() { lo + (a + 1.0) * 0.5 * (hi - lo) } else { a }
+                    })
+                    .collect();
+                (HostTensor::from_f32(vec![b, d], &env), raw)
+            }
+            ActionMap::Discrete { start } => {
+                let idx = Vec::<i64>::try_from(&actions.to_kind(Kind::Int64).flatten(0, -1)).expect("i64 actions");
+                let env: Vec<i64> = idx.iter().map(|a| a + start).collect();
+                (HostTensor::from_i64(vec![b], &env), idx.iter().map(|&a| a as f32).collect())
+            }
+        }
+    }
+}
+
+/// A live session with its per-instance adders and the current observations.
+struct Live {
+    env: RemoteEnv,
+    adders: Vec<SnippetAdder>,
+    obs: Vec<f32>,
+}
+
+/// The parts of an actor that make sessions (shared across awaits, so no tensors).
+struct Sessions<'a> {
+    id: usize,
+    client: &'a EnvClient,
+    make: &'a MakeOptions,
+    layout: SnippetLayout,
+    schedule: &'a Schedule,
+}
+
+async fn start(ctx: &Sessions<'_>) -> Result<Live, EnvError> {
+    let mut env = ctx.client.make(ctx.make).await?;
+    let reset = env.reset(&[], &[]).await?;
+    let obs = reset.observation.to_flat_f32();
+    let o = ctx.layout.obs_dim;
+    let mut adders = vec![SnippetAdder::new(ctx.layout); ctx.make.num_envs];
+    for (i, adder) in adders.iter_mut().enumerate() {
+        adder.observe_first(&obs[i * o..(i + 1) * o]);
+    }
+    Ok(Live { env, adders, obs })
+}
+
+/// Make the session again after the server lost it (restart), backing off.
+async fn restart(ctx: &Sessions<'_>, cause: &EnvError) -> Result<Live, EnvError> {
+    tracing::warn!(actor = ctx.id, error = %cause, "env session lost; reconnecting");
+    let mut delay = Duration::from_millis(200);
+    for _ in 0..30 {
+        if ctx.schedule.counters().stop {
+            break;
+        }
+        match start(ctx).await {
+            Ok(live) => {
+                tracing::info!(actor = ctx.id, "env session made again");
+                return Ok(live);
+            }
+            Err(e) => tracing::warn!(actor = ctx.id, error = %e, "reconnect failed; retrying"),
+        }
+        tokio::time::sleep(delay).await;
+        delay = (delay * 2).min(Duration::from_secs(5));
+    }
+    Err(EnvError::Process(format!("actor {}: could not make the session again after: {cause}", ctx.id)))
+}
+
+fn recoverable(e: &EnvError) -> bool {
+    matches!(e.status_kind(), Some(StatusKind::Unavailable | StatusKind::NotFound))
+        || matches!(e, EnvError::Connect { .. })
+}
+
+/// Run until the env-step budget is spent or the schedule stops.
+pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
+    let ActorContext { id, client, make, mut policy, mut params, layout, schedule, files, total_env_steps } = ctx;
+    let sessions = Sessions { id, client: &client, make: &make, layout, schedule: &schedule };
+    let b = make.num_envs;
+    let (o, k) = (layout.obs_dim, layout.num_rewards);
+    let mut live = start(&sessions).await?;
+    let map = ActionMap::new(&live.env.spec().action_space)?;
+    loop {
+        if params.has_changed().unwrap_or(false) {
+            let snapshot = params.borrow_and_update().clone();
+            policy.load(&snapshot).map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+        }
+        let c = schedule.counters();
+        if c.stop || c.env_steps >= total_env_steps {
+            break;
+        }
+        let obs_t = Tensor::from_slice(&live.obs).view([b as i64, o as i64]);
+        let out = tch::no_grad(|| policy.act(&obs_t, false));
+        let log_probs = Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
+        let (env_action, replay_actions) = map.apply(&out.actions, b);
+        let step = match live.env.step(&env_action).await {
+            Ok(step) => step,
+            Err(e) if recoverable(&e) => {
+                live = restart(&sessions, &e).await?;
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
+        let next = step.observation.to_flat_f32();
+        let finals = step.final_observation.to_flat_f32();
+        let width = replay_actions.len() / b;
+        let mut snippets = Vec::new();
+        for i in 0..b {
+            let ended_at = step.episodes.iter().position(|e| e.env_index == i);
+            let next_obs = match ended_at {
+                Some(j) if !finals.is_empty() => &finals[j * o..(j + 1) * o],
+                _ => &next[i * o..(i + 1) * o],
+            };
+            let adder_step = AdderStep {
+                action: &replay_actions[i * width..(i + 1) * width],
+                reward: &step.reward[i * k..(i + 1) * k],
+                next_observation: next_obs,
+                terminated: step.terminated[i],
+                truncated: step.truncated[i],
+                log_prob: log_probs[i],
+            };
+            snippets.extend(live.adders[i].add(adder_step));
+            if ended_at.is_some() {
+                live.adders[i].observe_first(&next[i * o..(i + 1) * o]);
+            }
+        }
+        live.obs = next;
+        {
+            let mut replay = schedule.replay.lock().unwrap_or_else(|e| e.into_inner());
+            for s in snippets {
+                replay.insert(s).map_err(|e| EnvError::Process(e.to_string()))?;
+            }
+        }
+        let env_steps = schedule.counters().env_steps + b as u64;
+        for episode in &step.episodes {
+            let record = EpisodeRecord { env_steps, actor: id, episode: episode.clone() };
+            files.episode(&record).map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
+        }
+        schedule.add_env_steps(b as u64, step.episodes.into_iter().map(|e| e.episode_return));
+        schedule.wait_for_learner().await;
+    }
+    // The session may already be gone if the server went away at the very end.
+    let _ = live.env.close().await;
+    Ok(())
+}

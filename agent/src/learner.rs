@@ -1,0 +1,196 @@
+//! The learner loop (Algorithm 3's outer loop): sample snippets, take a learner
+//! step, publish the policy to the actors, log, and checkpoint.
+//!
+//! Runs on its own OS thread (libtorch calls block). Checkpoints go to
+//! `<run>/checkpoints/step_<n>/` (the learner state, written atomically by
+//! `checkpoint.rs`) plus `step_<n>.run.json` (env-step and episode counters), and
+//! `latest.json` is switched to the new pair only after both exist, so a run killed
+//! at any moment resumes from a complete checkpoint. The two newest are kept.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use tokio::sync::watch;
+
+use crate::algo::mompo::{LearnerStats, MoMpoLearner};
+use crate::checkpoint::CheckpointError;
+use crate::metrics::{RunFiles, write_json_atomic};
+use crate::nets::PolicySnapshot;
+use crate::schedule::{Counters, Schedule};
+
+/// Counters saved beside each learner checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RunProgress {
+    /// Env steps when the checkpoint was written.
+    pub env_steps: u64,
+    /// Learner steps (equals the learner's own counter).
+    pub learner_steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct Latest {
+    checkpoint: String,
+}
+
+/// Errors of the learner loop.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerLoopError {
+    /// The learner step failed.
+    #[error(transparent)]
+    Step(#[from] crate::algo::mompo::LearnerError),
+    /// Writing or reading a checkpoint failed.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// A run file could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// File involved.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// No checkpoint to resume from.
+    #[error("no checkpoint in {0} (nothing to resume)")]
+    NoCheckpoint(PathBuf),
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnerLoopError + '_ {
+    move |source| LearnerLoopError::Io { path: path.to_path_buf(), source }
+}
+
+/// Write a checkpoint of `learner` and `counters` under `<run>/checkpoints/`.
+pub fn save_run_checkpoint(run_dir: &Path, learner: &MoMpoLearner, counters: &Counters) -> Result<PathBuf, LearnerLoopError> {
+    let dir = run_dir.join("checkpoints");
+    let name = format!("step_{:09}", learner.step_count());
+    let ckpt = dir.join(&name);
+    learner.save_checkpoint(&ckpt)?;
+    let progress =
+        RunProgress { env_steps: counters.env_steps, learner_steps: learner.step_count(), episodes: counters.episodes };
+    let progress_path = dir.join(format!("{name}.run.json"));
+    write_json_atomic(&progress_path, &progress).map_err(io_err(&progress_path))?;
+    let latest = dir.join("latest.json");
+    write_json_atomic(&latest, &Latest { checkpoint: name.clone() }).map_err(io_err(&latest))?;
+    // Keep the two newest complete checkpoints.
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .map_err(io_err(&dir))?
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.starts_with("step_") && !n.contains('.'))
+        .collect();
+    names.sort();
+    for old in names.iter().rev().skip(2) {
+        let _ = std::fs::remove_dir_all(dir.join(old));
+        let _ = std::fs::remove_file(dir.join(format!("{old}.run.json")));
+    }
+    Ok(ckpt)
+}
+
+/// The newest complete checkpoint of a run: its directory and counters.
+pub fn latest_checkpoint(run_dir: &Path) -> Result<(PathBuf, RunProgress), LearnerLoopError> {
+    let dir = run_dir.join("checkpoints");
+    let latest_path = dir.join("latest.json");
+    let text = std::fs::read_to_string(&latest_path).map_err(|_| LearnerLoopError::NoCheckpoint(run_dir.to_path_buf()))?;
+    let latest: Latest = serde_json::from_str(&text)
+        .map_err(|e| LearnerLoopError::Io { path: latest_path.clone(), source: std::io::Error::other(e) })?;
+    let progress_path = dir.join(format!("{}.run.json", latest.checkpoint));
+    let text = std::fs::read_to_string(&progress_path).map_err(io_err(&progress_path))?;
+    let progress: RunProgress = serde_json::from_str(&text)
+        .map_err(|e| LearnerLoopError::Io { path: progress_path.clone(), source: std::io::Error::other(e) })?;
+    Ok((dir.join(latest.checkpoint), progress))
+}
+
+/// One `learner.jsonl` record.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LearnerRecord {
+    /// Learner steps done.
+    pub learner_step: u64,
+    /// Env steps at that moment.
+    pub env_steps: u64,
+    /// Seconds since the run (or resume) started.
+    pub wall_seconds: f64,
+    /// Per critic head: 0.5 * mean squared Retrace error.
+    pub critic_loss: Vec<f32>,
+    /// Per objective: temperature eta_k.
+    pub temperature: Vec<f32>,
+    /// Per objective: realised KL(q_k || pi_old).
+    pub estep_kl: Vec<f32>,
+    /// Lagrange multipliers (alpha_mu, alpha_Sigma) or (alpha).
+    pub alpha: Vec<f32>,
+    /// KL(pi_old || pi) parts before the update.
+    pub policy_kl: Vec<f32>,
+    /// Milliseconds of the step.
+    pub step_ms: f64,
+}
+
+/// What the learner thread needs.
+#[derive(Debug)]
+pub struct LearnerContext {
+    /// The learner (fresh or restored).
+    pub learner: MoMpoLearner,
+    /// Rate limiter and replay.
+    pub schedule: Arc<Schedule>,
+    /// Where published policies go.
+    pub params: watch::Sender<Arc<PolicySnapshot>>,
+    /// Run files.
+    pub files: Arc<RunFiles>,
+    /// Learner steps between publications.
+    pub publish_period: u64,
+    /// Learner steps between checkpoints.
+    pub checkpoint_period: u64,
+    /// Learner steps between log records.
+    pub log_period: u64,
+    /// The latest statistics, for the progress display.
+    pub latest: Arc<Mutex<Option<LearnerStats>>>,
+}
+
+/// Run until the schedule stops; always writes a final checkpoint. Returns the learner.
+pub fn run_learner(ctx: LearnerContext) -> Result<MoMpoLearner, LearnerLoopError> {
+    let LearnerContext { mut learner, schedule, params, files, publish_period, checkpoint_period, log_period, latest } = ctx;
+    let started = Instant::now();
+    let device = learner.device();
+    let batch_size = learner.config().mpo.batch_size;
+    let result = (|| -> Result<(), LearnerLoopError> {
+        while schedule.wait_for_work() {
+            let t0 = Instant::now();
+            let batch = schedule.replay.lock().unwrap_or_else(|e| e.into_inner()).sample(batch_size);
+            let stats = learner.step(&batch.to_device(device))?;
+            let step_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let n = learner.step_count();
+            if n % publish_period == 0 {
+                params.send_replace(Arc::new(learner.policy_snapshot()));
+            }
+            if n % log_period == 0 {
+                let record = LearnerRecord {
+                    learner_step: n,
+                    env_steps: schedule.counters().env_steps,
+                    wall_seconds: started.elapsed().as_secs_f64(),
+                    critic_loss: stats.critic_loss.clone(),
+                    temperature: stats.temperature.clone(),
+                    estep_kl: stats.estep_kl.clone(),
+                    alpha: stats.alpha.clone(),
+                    policy_kl: stats.policy_kl.clone(),
+                    step_ms,
+                };
+                let path = files.dir().join("learner.jsonl");
+                files.learner(&record).map_err(io_err(&path))?;
+            }
+            *latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
+            if n % checkpoint_period == 0 {
+                files.flush().map_err(io_err(files.dir()))?;
+                save_run_checkpoint(files.dir(), &learner, &schedule.counters())?;
+            }
+            schedule.learner_stepped();
+        }
+        Ok(())
+    })();
+    if let Err(e) = &result {
+        schedule.stop(Some(e.to_string()));
+    }
+    // Whatever happened, leave a checkpoint of the state reached.
+    files.flush().map_err(io_err(files.dir()))?;
+    save_run_checkpoint(files.dir(), &learner, &schedule.counters())?;
+    result.map(|()| learner)
+}

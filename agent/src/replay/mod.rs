@@ -1,0 +1,216 @@
+//! Replay of trajectory snippets for MO-MPO (appendix C.1, Algorithm 2).
+//!
+//! Actors cut each instance's stream of transitions into snippets of T steps
+//! ([`adder::SnippetAdder`]); the learner samples B of them uniformly
+//! ([`SnippetReplay::sample`]) as a [`SnippetBatch`] `[T(+1), B, ...]`.
+//! Capacity is counted in transitions (Table 2: 1e6) and stored as T-step snippets.
+
+pub mod adder;
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use tch::Tensor;
+
+use crate::algo::batch::SnippetBatch;
+
+/// Sizes of one snippet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SnippetLayout {
+    /// Transitions per snippet T.
+    pub length: usize,
+    /// Flattened observation size O.
+    pub obs_dim: usize,
+    /// D for continuous actions, 1 (the index) for discrete ones.
+    pub action_width: usize,
+    /// Env reward columns K.
+    pub num_rewards: usize,
+    /// Discrete actions are stored as their index and batched as i64.
+    pub discrete: bool,
+}
+
+/// T transitions of one env instance; flat, time-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Snippet {
+    /// `[T+1, O]`: s_0 .. s_T.
+    pub observations: Vec<f32>,
+    /// `[T, action_width]`.
+    pub actions: Vec<f32>,
+    /// `[T, K]`.
+    pub rewards: Vec<f32>,
+    /// `[T]`: 0 when s_{t+1} is terminal (or padding), else 1.
+    pub discounts: Vec<f32>,
+    /// `[T]`: log b(a_t|s_t).
+    pub behaviour_log_probs: Vec<f32>,
+}
+
+/// A snippet whose sizes do not match the replay's layout.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("snippet.{field}: expected {expected} values, got {got}")]
+pub struct ReplayError {
+    /// Field that was wrong.
+    pub field: &'static str,
+    /// Expected length.
+    pub expected: usize,
+    /// Received length.
+    pub got: usize,
+}
+
+/// Uniform replay of snippets in a ring buffer.
+#[derive(Debug)]
+pub struct SnippetReplay {
+    layout: SnippetLayout,
+    capacity: usize,
+    snippets: Vec<Snippet>,
+    next: usize,
+    inserted: u64,
+    rng: ChaCha8Rng,
+}
+
+impl SnippetReplay {
+    /// A replay holding up to `capacity_transitions / T` snippets, sampling with `seed`.
+    pub fn new(layout: SnippetLayout, capacity_transitions: usize, seed: u64) -> Self {
+        let capacity = (capacity_transitions / layout.length).max(1);
+        Self { layout, capacity, snippets: Vec::new(), next: 0, inserted: 0, rng: ChaCha8Rng::seed_from_u64(seed) }
+    }
+
+    /// The snippet sizes.
+    pub fn layout(&self) -> SnippetLayout {
+        self.layout
+    }
+
+    /// Snippets held.
+    pub fn len(&self) -> usize {
+        self.snippets.len()
+    }
+
+    /// True when nothing has been inserted.
+    pub fn is_empty(&self) -> bool {
+        self.snippets.is_empty()
+    }
+
+    /// Snippets inserted since creation (including evicted ones).
+    pub fn inserted(&self) -> u64 {
+        self.inserted
+    }
+
+    /// Add a snippet, evicting the oldest when full.
+    pub fn insert(&mut self, snippet: Snippet) -> Result<(), ReplayError> {
+        let l = self.layout;
+        let check = |field, expected: usize, got: usize| {
+            if expected == got { Ok(()) } else { Err(ReplayError { field, expected, got }) }
+        };
+        check("observations", (l.length + 1) * l.obs_dim, snippet.observations.len())?;
+        check("actions", l.length * l.action_width, snippet.actions.len())?;
+        check("rewards", l.length * l.num_rewards, snippet.rewards.len())?;
+        check("discounts", l.length, snippet.discounts.len())?;
+        check("behaviour_log_probs", l.length, snippet.behaviour_log_probs.len())?;
+        if self.snippets.len() < self.capacity {
+            self.snippets.push(snippet);
+        } else {
+            self.snippets[self.next] = snippet;
+        }
+        self.next = (self.next + 1) % self.capacity;
+        self.inserted += 1;
+        Ok(())
+    }
+
+    /// `batch_size` snippets drawn uniformly with replacement, as time-major tensors.
+    ///
+    /// Panics when empty (callers wait for a minimum fill first).
+    pub fn sample(&mut self, batch_size: usize) -> SnippetBatch {
+        assert!(!self.snippets.is_empty(), "sampling an empty replay");
+        let picks: Vec<usize> = (0..batch_size).map(|_| self.rng.random_range(0..self.snippets.len())).collect();
+        let l = self.layout;
+        let (t, b) = (l.length, batch_size);
+        // Gather field `f` of every picked snippet into time-major [steps, B, width].
+        let gather = |f: fn(&Snippet) -> &[f32], steps: usize, width: usize| -> Vec<f32> {
+            let mut out = vec![0.0f32; steps * b * width];
+            for (j, &i) in picks.iter().enumerate() {
+                let src = f(&self.snippets[i]);
+                for s in 0..steps {
+                    let dst = (s * b + j) * width;
+                    out[dst..dst + width].copy_from_slice(&src[s * width..(s + 1) * width]);
+                }
+            }
+            out
+        };
+        let (t_, b_) = (t as i64, b as i64);
+        let observations =
+            Tensor::from_slice(&gather(|s| &s.observations, t + 1, l.obs_dim)).view([t_ + 1, b_, l.obs_dim as i64]);
+        let actions_flat = gather(|s| &s.actions, t, l.action_width);
+        let actions = if l.discrete {
+            let idx: Vec<i64> = actions_flat.iter().map(|&a| a as i64).collect();
+            Tensor::from_slice(&idx).view([t_, b_])
+        } else {
+            Tensor::from_slice(&actions_flat).view([t_, b_, l.action_width as i64])
+        };
+        SnippetBatch {
+            observations,
+            actions,
+            rewards: Tensor::from_slice(&gather(|s| &s.rewards, t, l.num_rewards)).view([t_, b_, l.num_rewards as i64]),
+            discounts: Tensor::from_slice(&gather(|s| &s.discounts, t, 1)).view([t_, b_]),
+            behaviour_log_probs: Tensor::from_slice(&gather(|s| &s.behaviour_log_probs, t, 1)).view([t_, b_]),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layout() -> SnippetLayout {
+        SnippetLayout { length: 2, obs_dim: 1, action_width: 1, num_rewards: 2, discrete: true }
+    }
+
+    fn snippet(tag: f32) -> Snippet {
+        Snippet {
+            observations: vec![tag, tag + 0.1, tag + 0.2],
+            actions: vec![1.0, 3.0],
+            rewards: vec![tag, -tag, tag, -tag],
+            discounts: vec![1.0, 0.0],
+            behaviour_log_probs: vec![-0.5, -0.25],
+        }
+    }
+
+    #[test]
+    fn sample_is_time_major_and_keeps_fields_of_one_snippet_together() {
+        let mut replay = SnippetReplay::new(layout(), 100, 0);
+        replay.insert(snippet(1.0)).unwrap();
+        replay.insert(snippet(2.0)).unwrap();
+        let batch = replay.sample(16);
+        assert_eq!(batch.observations.size(), [3, 16, 1]);
+        assert_eq!(batch.actions.size(), [2, 16]);
+        assert_eq!(batch.actions.kind(), tch::Kind::Int64);
+        assert_eq!(batch.rewards.size(), [2, 16, 2]);
+        for j in 0..16 {
+            let tag = batch.observations.double_value(&[0, j, 0]);
+            assert!((batch.observations.double_value(&[2, j, 0]) - (tag + 0.2)).abs() < 1e-6);
+            assert_eq!(batch.rewards.double_value(&[1, j, 1]), -tag);
+            assert_eq!(batch.actions.int64_value(&[1, j]), 3);
+            assert_eq!(batch.discounts.double_value(&[1, j]), 0.0);
+        }
+    }
+
+    #[test]
+    fn full_replay_evicts_the_oldest_snippet() {
+        // Capacity 4 transitions = 2 snippets of T = 2.
+        let mut replay = SnippetReplay::new(layout(), 4, 0);
+        for tag in [1.0, 2.0, 3.0] {
+            replay.insert(snippet(tag)).unwrap();
+        }
+        assert_eq!((replay.len(), replay.inserted()), (2, 3));
+        let batch = replay.sample(64);
+        let first: Vec<f64> = (0..64).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
+        assert!(first.iter().all(|&t| t == 2.0 || t == 3.0), "snippet 1 was evicted: {first:?}");
+        assert!(first.contains(&2.0) && first.contains(&3.0));
+    }
+
+    #[test]
+    fn wrong_sizes_are_rejected_with_the_field_name() {
+        let mut replay = SnippetReplay::new(layout(), 100, 0);
+        let mut bad = snippet(1.0);
+        bad.rewards.pop();
+        let err = replay.insert(bad).unwrap_err();
+        assert_eq!(err.to_string(), "snippet.rewards: expected 4 values, got 3");
+    }
+}

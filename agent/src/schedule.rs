@@ -1,0 +1,230 @@
+//! The rate limiter between actors and the learner (appendix C.1's asynchronous
+//! actor-learner loop, made reproducible).
+//!
+//! Once the replay holds `min_replay_transitions`, the learner may take
+//! `floor((env_steps - min_replay) * ratio)` steps in total. Actors wait until the
+//! learner has taken them before stepping further; the learner waits for env steps.
+//! With one actor the interleaving is therefore fixed, and a run with the same
+//! config and seed reproduces its learning curve on the same machine.
+
+use std::sync::{Condvar, Mutex, MutexGuard};
+
+use crate::replay::SnippetReplay;
+
+/// Episodes kept for the running mean shown while training.
+pub const RECENT: usize = 20;
+
+impl Counters {
+    /// Mean vector return of the recent episodes (empty before the first one).
+    pub fn recent_mean_return(&self) -> Vec<f64> {
+        let n = self.recent_returns.len() as f64;
+        let k = self.recent_returns.front().map_or(0, Vec::len);
+        (0..k).map(|i| self.recent_returns.iter().map(|r| r[i]).sum::<f64>() / n).collect()
+    }
+}
+
+/// Counters shared by actors, learner and the progress display.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Counters {
+    /// Env steps summed over all instances.
+    pub env_steps: u64,
+    /// Learner steps done.
+    pub learner_steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+    /// Undiscounted vector returns of the latest episodes (at most `RECENT`).
+    pub recent_returns: std::collections::VecDeque<Vec<f64>>,
+    /// Set when the run should end (done, Ctrl-C, or an error).
+    pub stop: bool,
+    /// First fatal error, if any.
+    pub error: Option<String>,
+}
+
+/// Shared state of one run.
+#[derive(Debug)]
+pub struct Schedule {
+    counters: Mutex<Counters>,
+    learner_wake: Condvar,
+    actor_wake: tokio::sync::Notify,
+    /// The replay, filled by actors and sampled by the learner.
+    pub replay: Mutex<SnippetReplay>,
+    ratio: f64,
+    min_replay: u64,
+}
+
+impl Schedule {
+    /// A schedule starting from `counters` (non-zero when resuming).
+    pub fn new(replay: SnippetReplay, ratio: f64, min_replay_transitions: usize, counters: Counters) -> Self {
+        Self {
+            counters: Mutex::new(counters),
+            learner_wake: Condvar::new(),
+            actor_wake: tokio::sync::Notify::new(),
+            replay: Mutex::new(replay),
+            ratio,
+            min_replay: min_replay_transitions as u64,
+        }
+    }
+
+    /// A consistent copy of the counters.
+    pub fn counters(&self) -> Counters {
+        self.lock().clone()
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Counters> {
+        self.counters.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Learner steps allowed after `env_steps` env steps with `replayed` transitions stored.
+    fn allowed(&self, c: &Counters, replayed: u64) -> u64 {
+        if replayed < self.min_replay {
+            return c.learner_steps;
+        }
+        let warm = c.env_steps.saturating_sub(self.min_replay) as f64;
+        (warm * self.ratio).floor() as u64
+    }
+
+    fn replayed_transitions(&self) -> u64 {
+        let r = self.replay.lock().unwrap_or_else(|e| e.into_inner());
+        (r.len() * r.layout().length) as u64
+    }
+
+    /// Record env steps and finished episodes' returns from an actor; wake the learner.
+    pub fn add_env_steps(&self, steps: u64, episode_returns: impl IntoIterator<Item = Vec<f64>>) {
+        let mut c = self.lock();
+        c.env_steps += steps;
+        for r in episode_returns {
+            c.episodes += 1;
+            if c.recent_returns.len() == RECENT {
+                c.recent_returns.pop_front();
+            }
+            c.recent_returns.push_back(r);
+        }
+        drop(c);
+        self.learner_wake.notify_all();
+    }
+
+    /// Actors: wait until the learner has caught up with the env steps so far (or stop).
+    pub async fn wait_for_learner(&self) {
+        loop {
+            let notified = self.actor_wake.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            let replayed = self.replayed_transitions();
+            {
+                let c = self.lock();
+                if c.stop || c.learner_steps >= self.allowed(&c, replayed) {
+                    return;
+                }
+            }
+            notified.await;
+        }
+    }
+
+    /// Learner: block until a step is allowed; false when the run is stopping.
+    pub fn wait_for_work(&self) -> bool {
+        let mut c = self.lock();
+        loop {
+            if c.stop {
+                return false;
+            }
+            drop(c);
+            let replayed = self.replayed_transitions();
+            c = self.lock();
+            if c.stop {
+                return false;
+            }
+            if c.learner_steps < self.allowed(&c, replayed) {
+                return true;
+            }
+            c = self.learner_wake.wait(c).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Learner: one step done; wake waiting actors.
+    pub fn learner_stepped(&self) -> u64 {
+        let mut c = self.lock();
+        c.learner_steps += 1;
+        let n = c.learner_steps;
+        drop(c);
+        self.actor_wake.notify_waiters();
+        n
+    }
+
+    /// End the run (idempotent); the first error given is kept.
+    pub fn stop(&self, error: Option<String>) {
+        let mut c = self.lock();
+        c.stop = true;
+        if c.error.is_none() {
+            c.error = error;
+        }
+        drop(c);
+        self.learner_wake.notify_all();
+        self.actor_wake.notify_waiters();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::replay::{Snippet, SnippetLayout};
+
+    fn schedule(ratio: f64, min_replay: usize) -> Schedule {
+        let layout = SnippetLayout { length: 1, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true };
+        Schedule::new(SnippetReplay::new(layout, 1000, 0), ratio, min_replay, Counters::default())
+    }
+
+    fn fill(s: &Schedule, n: usize) {
+        let mut r = s.replay.lock().unwrap();
+        for _ in 0..n {
+            let snippet = Snippet {
+                observations: vec![0.0, 0.0],
+                actions: vec![0.0],
+                rewards: vec![0.0],
+                discounts: vec![1.0],
+                behaviour_log_probs: vec![0.0],
+            };
+            r.insert(snippet).unwrap();
+        }
+    }
+
+    #[test]
+    fn learner_budget_follows_the_ratio_after_warm_up() {
+        let s = schedule(0.25, 10);
+        fill(&s, 9);
+        s.add_env_steps(9, []);
+        assert_eq!(s.allowed(&s.counters(), 9), 0, "replay not warm yet");
+        fill(&s, 11);
+        s.add_env_steps(11, []);
+        // 20 env steps, 10 past warm-up, ratio 1/4 -> 2 learner steps.
+        assert_eq!(s.allowed(&s.counters(), 20), 2);
+        assert!(s.wait_for_work());
+        s.learner_stepped();
+        assert!(s.wait_for_work());
+        s.learner_stepped();
+        s.stop(None);
+        assert!(!s.wait_for_work(), "no third step: the budget is 2, and the run stopped");
+    }
+
+    #[tokio::test]
+    async fn actors_wait_until_the_learner_catches_up() {
+        let s = std::sync::Arc::new(schedule(1.0, 1));
+        fill(&s, 3);
+        s.add_env_steps(3, []);
+        let learner = {
+            let s = s.clone();
+            std::thread::spawn(move || {
+                let mut steps = 0;
+                while s.wait_for_work() {
+                    s.learner_stepped();
+                    steps += 1;
+                    if steps == 2 {
+                        break;
+                    }
+                }
+            })
+        };
+        tokio::time::timeout(std::time::Duration::from_secs(10), s.wait_for_learner()).await.unwrap();
+        assert_eq!(s.counters().learner_steps, 2, "(3 - 1) * 1.0 learner steps before the actor resumes");
+        learner.join().unwrap();
+    }
+}

@@ -1,0 +1,447 @@
+//! One training run: actors + learner + progress + checkpoints + final evaluation.
+//!
+//! `train` makes (or, with `resume`, reopens) `runs/<task>__<algo>__<seed>__<time>/`,
+//! writes the resolved config there, runs the actors (tokio tasks) and the learner
+//! (an OS thread) under the schedule's rate limit, stops on the env-step budget or
+//! Ctrl-C, evaluates the deterministic policy, and writes `summary.json` and the
+//! learning curves (`curves.png`, `curves.svg`).
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use tch::{Device, Tensor};
+use tokio::sync::watch;
+
+use crate::actor::{ActorContext, run_actor};
+use crate::algo::mompo::MoMpoLearner;
+use crate::algo::objectives::LearnerDims;
+use crate::config::ConfigError;
+use crate::device::{configure_threads, learner_device};
+use crate::env::grpc::EnvClient;
+use crate::env::{Env, EpisodeSummary, HostTensor, MakeOptions};
+use crate::error::EnvError;
+use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
+use crate::metrics::{RunFiles, write_json_atomic};
+use crate::nets::{ActionKind, ActorPolicy};
+use crate::plot::{Figure, PlotError, Series, SeriesKind};
+use crate::replay::{SnippetLayout, SnippetReplay};
+use crate::run_config::TrainConfig;
+use crate::schedule::{Counters, Schedule};
+use crate::spec::{EnvSpec, Space};
+
+/// Errors of a training run.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// Bad configuration (including objective names that do not match the env).
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// Talking to the env server failed.
+    #[error(transparent)]
+    Env(#[from] EnvError),
+    /// The learner loop or its checkpoints failed.
+    #[error(transparent)]
+    Learner(#[from] LearnerLoopError),
+    /// Building the learner failed.
+    #[error(transparent)]
+    Build(#[from] crate::algo::mompo::LearnerError),
+    /// Restoring a checkpoint failed.
+    #[error(transparent)]
+    Checkpoint(#[from] crate::checkpoint::CheckpointError),
+    /// Writing a figure failed.
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    /// A run file could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// File involved.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// An actor or the learner stopped the run.
+    #[error("run stopped: {0}")]
+    Stopped(String),
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |source| TrainError::Io { path: path.to_path_buf(), source }
+}
+
+/// How to run `train`.
+#[derive(Debug, Clone, Default)]
+pub struct TrainOptions {
+    /// Continue the run in this directory from its latest checkpoint.
+    pub resume: Option<PathBuf>,
+    /// Draw a progress bar.
+    pub progress: bool,
+}
+
+/// What a finished run reports (also `summary.json`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrainSummary {
+    /// The run directory.
+    pub run_dir: PathBuf,
+    /// Objective names in reward order.
+    pub objectives: Vec<String>,
+    /// Env steps done.
+    pub env_steps: u64,
+    /// Learner steps done.
+    pub learner_steps: u64,
+    /// Training episodes finished.
+    pub episodes: u64,
+    /// Wall time of this invocation.
+    pub wall_seconds: f64,
+    /// Mean undiscounted return of the last training episodes.
+    pub recent_train_return: Vec<f64>,
+    /// Temperatures eta_k at the end.
+    pub temperature: Vec<f32>,
+    /// Evaluation episodes (deterministic policy), as reported by the server.
+    pub eval_episodes: Vec<EpisodeSummary>,
+    /// Mean undiscounted evaluation return per objective.
+    pub eval_return: Vec<f64>,
+    /// Mean discounted evaluation return per objective.
+    pub eval_discounted_return: Vec<f64>,
+    /// The discount of `eval_discounted_return`.
+    pub eval_discount: f64,
+}
+
+/// Run one training job against the servers at `addresses` (round-robin per actor).
+pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions) -> Result<TrainSummary, TrainError> {
+    let started = Instant::now();
+    configure_threads(cfg.learner.num_threads);
+    let clients = connect_all(addresses).await?;
+    let spec = probe_spec(&clients[0], &cfg).await?;
+    let dims = LearnerDims::from_spec(&spec)?;
+    let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
+
+    let device = learner_device();
+    let (run_dir, learner, counters) = match &options.resume {
+        Some(dir) => {
+            let (ckpt, progress) = latest_checkpoint(dir)?;
+            let learner = MoMpoLearner::load_checkpoint(&ckpt, device)?;
+            tracing::info!(checkpoint = %ckpt.display(), env_steps = progress.env_steps, "resuming");
+            let counters = Counters {
+                env_steps: progress.env_steps,
+                learner_steps: progress.learner_steps,
+                episodes: progress.episodes,
+                ..Counters::default()
+            };
+            (dir.clone(), learner, counters)
+        }
+        None => {
+            let dir = new_run_dir(&cfg);
+            std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+            let text = toml::to_string_pretty(&cfg).map_err(|e| TrainError::Io {
+                path: dir.join("config.toml"),
+                source: std::io::Error::other(e),
+            })?;
+            std::fs::write(dir.join("config.toml"), text).map_err(io(&dir))?;
+            (dir, MoMpoLearner::new(cfg.learner.clone(), dims.clone(), device)?, Counters::default())
+        }
+    };
+    let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
+    let layout = SnippetLayout {
+        length: cfg.learner.mpo.retrace_length as usize,
+        obs_dim: dims.obs_dim as usize,
+        action_width: match dims.action {
+            ActionKind::Continuous { dim } => dim as usize,
+            ActionKind::Discrete { .. } => 1,
+        },
+        num_rewards: objectives.len(),
+        discrete: matches!(dims.action, ActionKind::Discrete { .. }),
+    };
+    let replay = SnippetReplay::new(layout, cfg.learner.mpo.replay_capacity as usize, cfg.seed);
+    let schedule = Arc::new(Schedule::new(
+        replay,
+        cfg.run.learner_steps_per_env_step,
+        cfg.run.min_replay_transitions.max(cfg.learner.mpo.retrace_length as usize),
+        counters,
+    ));
+    let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
+    let latest = Arc::new(Mutex::new(None));
+
+    let learner_thread = {
+        let ctx = LearnerContext {
+            learner,
+            schedule: schedule.clone(),
+            params: params_tx,
+            files: files.clone(),
+            publish_period: cfg.run.publish_period,
+            checkpoint_period: cfg.run.checkpoint_period,
+            log_period: cfg.run.log_period,
+            latest: latest.clone(),
+        };
+        std::thread::Builder::new()
+            .name("learner".into())
+            .spawn(move || run_learner(ctx))
+            .map_err(io(&run_dir))?
+    };
+
+    let mut actors = Vec::new();
+    for a in 0..cfg.env.num_actors {
+        let mut policy = ActorPolicy::new(&cfg.learner.network, dims.obs_dim, dims.action, Device::Cpu);
+        policy.load(&params_rx.borrow()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+        let ctx = ActorContext {
+            id: a,
+            client: clients[a % clients.len()].clone(),
+            make: make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64),
+            policy,
+            params: params_rx.clone(),
+            layout,
+            schedule: schedule.clone(),
+            files: files.clone(),
+            total_env_steps: cfg.run.total_env_steps,
+        };
+        let schedule = schedule.clone();
+        actors.push(tokio::spawn(async move {
+            if let Err(e) = run_actor(ctx).await {
+                schedule.stop(Some(format!("actor {a}: {e}")));
+            }
+        }));
+    }
+
+    let bar = progress_bar(options.progress, &cfg, &schedule);
+    let ticker = {
+        let (schedule, latest, bar, names) = (schedule.clone(), latest.clone(), bar.clone(), objectives.clone());
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = tokio::time::sleep(Duration::from_millis(250)) => {}
+                    _ = tokio::signal::ctrl_c() => {
+                        tracing::warn!("Ctrl-C: stopping after a final checkpoint");
+                        schedule.stop(Some("interrupted (Ctrl-C); resume with --resume".into()));
+                    }
+                }
+                let c = schedule.counters();
+                bar.set_position(c.env_steps);
+                bar.set_message(progress_message(&c, &names, latest.lock().unwrap_or_else(|e| e.into_inner()).as_ref()));
+                if c.stop {
+                    break;
+                }
+            }
+        })
+    };
+
+    for actor in actors {
+        let _ = actor.await;
+    }
+    schedule.stop(None);
+    ticker.abort();
+    let learner = tokio::task::spawn_blocking(move || learner_thread.join())
+        .await
+        .map_err(|e| TrainError::Stopped(e.to_string()))?
+        .map_err(|_| TrainError::Stopped("the learner thread panicked".into()))?;
+    bar.finish_and_clear();
+    let counters = schedule.counters();
+    if let Some(error) = counters.error.clone() {
+        // The learner wrote a final checkpoint before returning.
+        let _ = learner;
+        return Err(TrainError::Stopped(error));
+    }
+    let learner = learner?;
+
+    let mut policy = ActorPolicy::new(&cfg.learner.network, dims.obs_dim, dims.action, Device::Cpu);
+    policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+    drop(learner);
+    let eval = evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?;
+    let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    let summary = TrainSummary {
+        run_dir: run_dir.clone(),
+        objectives: objectives.clone(),
+        env_steps: counters.env_steps,
+        learner_steps: counters.learner_steps,
+        episodes: counters.episodes,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        recent_train_return: counters.recent_mean_return(),
+        temperature: stats.map(|s| s.temperature).unwrap_or_default(),
+        eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
+        eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
+        eval_discount: spec.discount,
+        eval_episodes: eval,
+    };
+    write_json_atomic(&run_dir.join("summary.json"), &summary).map_err(io(&run_dir))?;
+    plot_curves(&run_dir, &objectives)?;
+    Ok(summary)
+}
+
+fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
+    let rows: Vec<&Vec<f64>> = rows.collect();
+    let k = rows.first().map_or(0, |r| r.len());
+    (0..k).map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64).collect()
+}
+
+async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, EnvError> {
+    let mut clients = Vec::new();
+    for address in addresses {
+        clients.push(EnvClient::connect(address).await?);
+    }
+    if clients.is_empty() {
+        return Err(EnvError::BadInput { field: "servers".into(), expected: "at least one address".into(), got: "none".into() });
+    }
+    Ok(clients)
+}
+
+fn make_options(cfg: &TrainConfig, num_envs: usize, seed: u64) -> MakeOptions {
+    MakeOptions { kwargs: cfg.env.kwargs.clone(), seed: Some(seed), ..MakeOptions::new(&cfg.env.id, num_envs) }
+}
+
+/// The env's spec, from a one-instance session made and closed at once.
+async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<EnvSpec, EnvError> {
+    let env = client.make(&make_options(cfg, 1, cfg.seed)).await?;
+    let spec = env.spec().clone();
+    env.close().await?;
+    Ok(spec)
+}
+
+fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
+    let time = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0);
+    let task: String = cfg.env.id.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
+    cfg.run.runs_dir.join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
+}
+
+fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(cfg.run.total_env_steps).with_style(
+        ProgressStyle::with_template("{bar:30} {pos:>8}/{len} env steps [{elapsed_precise}<{eta}] {msg}")
+            .expect("valid template"),
+    );
+    bar.set_position(schedule.counters().env_steps);
+    bar
+}
+
+fn progress_message(c: &Counters, names: &[String], stats: Option<&crate::algo::mompo::LearnerStats>) -> String {
+    let fmt = |v: &[f64]| v.iter().map(|x| format!("{x:.2}")).collect::<Vec<_>>().join(", ");
+    let mut msg = format!("learner {} | ep {} | return [{}]=[{}]", c.learner_steps, c.episodes, names.join(", "), fmt(&c.recent_mean_return()));
+    if let Some(s) = stats {
+        let eta: Vec<f64> = s.temperature.iter().map(|&x| f64::from(x)).collect();
+        let kl: Vec<f64> = s.policy_kl.iter().map(|&x| f64::from(x)).collect();
+        msg.push_str(&format!(" | eta [{}] | KL [{}]", fmt(&eta), kl.iter().map(|x| format!("{x:.1e}")).collect::<Vec<_>>().join(", ")));
+    }
+    msg
+}
+
+/// Run the deterministic policy until `episodes` episodes finish; the server's summaries.
+pub async fn evaluate(client: &EnvClient, cfg: &TrainConfig, policy: ActorPolicy, episodes: usize) -> Result<Vec<EpisodeSummary>, EnvError> {
+    let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
+    // Seeds disjoint from the training sessions'.
+    let mut env = client.make(&make_options(cfg, num_envs, cfg.seed + 1_000_000)).await?;
+    let space = env.spec().action_space.clone();
+    let o = env.spec().observation_space.flat_dim();
+    let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
+    let mut done = Vec::new();
+    while done.len() < episodes {
+        let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
+        let out = tch::no_grad(|| policy.act(&obs_t, true));
+        let action = match &space {
+            Space::Box(b) => {
+                let raw = Vec::<f32>::try_from(&out.actions.flatten(0, -1)).expect("f32 actions");
+                let d = b.numel();
+                let env_action: Vec<f32> = raw
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &a)| {
+                        let (lo, hi) = (b.low[i % d] as f32, b.high[i % d] as f32);
+                        let a = a.clamp(-1.0, 1.0);
+                        if lo.is_finite() && hi.is_finite() { lo + (a + 1.0) * 0.5 * (hi - lo) } else { a }
+                    })
+                    .collect();
+                HostTensor::from_f32(vec![num_envs, d], &env_action)
+            }
+            Space::Discrete(d) => {
+                let idx = Vec::<i64>::try_from(&out.actions.flatten(0, -1)).expect("i64 actions");
+                HostTensor::from_i64(vec![num_envs], &idx.iter().map(|a| a + d.start).collect::<Vec<_>>())
+            }
+            Space::Dict(_) => unreachable!("rejected by LearnerDims::from_spec"),
+        };
+        let step = env.step(&action).await?;
+        done.extend(step.episodes);
+        obs = step.observation.to_flat_f32();
+    }
+    done.truncate(episodes);
+    env.close().await?;
+    Ok(done)
+}
+
+/// Learning curves from `episodes.csv`: per objective, the running mean (20 episodes)
+/// of the undiscounted return against env steps.
+fn plot_curves(run_dir: &Path, objectives: &[String]) -> Result<(), TrainError> {
+    let path = run_dir.join("episodes.csv");
+    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let rows: Vec<Vec<f64>> =
+        text.lines().skip(1).map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect()).collect();
+    let mut series = Vec::new();
+    for (k, name) in objectives.iter().enumerate() {
+        let mut points = Vec::new();
+        let mut window: std::collections::VecDeque<f64> = Default::default();
+        for r in &rows {
+            window.push_back(r[4 + k]);
+            if window.len() > 20 {
+                window.pop_front();
+            }
+            points.push((r[0], window.iter().sum::<f64>() / window.len() as f64));
+        }
+        series.push(Series { label: name.clone(), points, kind: SeriesKind::Line });
+    }
+    if rows.is_empty() {
+        return Ok(());
+    }
+    let figure = Figure {
+        title: format!("training returns ({})", run_dir.file_name().map(|n| n.to_string_lossy()).unwrap_or_default()),
+        x_label: "env steps".into(),
+        y_label: "episode return (mean of 20)".into(),
+        series,
+        log_x: false,
+    };
+    crate::plot::save(&figure, &run_dir.join("curves"))?;
+    Ok(())
+}
+
+/// What `agent eval` reports.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EvalReport {
+    /// The checkpoint evaluated.
+    pub checkpoint: PathBuf,
+    /// Objective names in reward order.
+    pub objectives: Vec<String>,
+    /// The server's per-episode summaries.
+    pub episodes: Vec<EpisodeSummary>,
+    /// Mean undiscounted return.
+    pub mean_return: Vec<f64>,
+    /// Mean discounted return.
+    pub mean_discounted_return: Vec<f64>,
+    /// γ of the discounted returns.
+    pub discount: f64,
+}
+
+/// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
+/// `checkpoints/step_<n>` directory) with the deterministic policy.
+pub async fn evaluate_checkpoint(path: &Path, addresses: &[String], episodes: usize) -> Result<EvalReport, TrainError> {
+    let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
+        (path.to_path_buf(), latest_checkpoint(path)?.0)
+    } else {
+        let run_dir = path.parent().and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
+        (run_dir, path.to_path_buf())
+    };
+    let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
+    let learner = MoMpoLearner::load_checkpoint(&ckpt, Device::Cpu)?;
+    let dims = learner.dims().clone();
+    let mut policy = ActorPolicy::new(&cfg.learner.network, dims.obs_dim, dims.action, Device::Cpu);
+    policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+    let clients = connect_all(addresses).await?;
+    let spec = probe_spec(&clients[0], &cfg).await?;
+    drop(learner);
+    let done = evaluate(&clients[0], &cfg, policy, episodes).await?;
+    Ok(EvalReport {
+        checkpoint: ckpt,
+        objectives: spec.objectives.iter().map(|o| o.name.clone()).collect(),
+        mean_return: mean_of(done.iter().map(|e| &e.episode_return)),
+        mean_discounted_return: mean_of(done.iter().map(|e| &e.discounted_return)),
+        discount: spec.discount,
+        episodes: done,
+    })
+}

@@ -1,0 +1,125 @@
+//! End-to-end runtime: real env_server processes, the real actor-learner loop.
+
+use std::path::Path;
+
+use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::pareto::hypervolume;
+use agent::run_config::TrainConfig;
+use agent::sweep::SweepConfig;
+use agent::train::{TrainOptions, train};
+
+fn smoke_config(runs_dir: &Path) -> TrainConfig {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let mut cfg = TrainConfig::load(&path).expect("smoke config loads");
+    cfg.run.runs_dir = runs_dir.to_path_buf();
+    cfg
+}
+
+/// Mean of column `name` over rows `range` of a run's episodes.csv.
+fn episode_mean(run_dir: &Path, name: &str, take_last: bool, n: usize) -> f64 {
+    let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
+    let mut lines = text.lines();
+    let col = lines.next().unwrap().split(',').position(|c| c == name).expect("column");
+    let values: Vec<f64> = lines.map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
+    assert!(values.len() >= 2 * n, "only {} episodes", values.len());
+    let slice = if take_last { &values[values.len() - n..] } else { &values[..n] };
+    slice.iter().sum::<f64>() / n as f64
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn training_on_dst_improves_the_preferred_objective() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let cfg = smoke_config(runs.path());
+    let summary = train(cfg, &[server.address().to_string()], TrainOptions::default()).await.unwrap();
+    assert_eq!(summary.env_steps, 8000);
+    // (8000 - 500 warm-up) * 0.25 learner steps.
+    assert_eq!(summary.learner_steps, 1875);
+    // epsilon_treasure / epsilon_time = 100 prefers treasure: the random start mostly
+    // takes the 0.7 next to the start; the trained policy reaches farther treasures.
+    let first = episode_mean(&summary.run_dir, "return_treasure", false, 200);
+    let last = episode_mean(&summary.run_dir, "return_treasure", true, 200);
+    // +1.0 is about three standard errors of a 200-episode mean here.
+    assert!(last > first + 1.0, "treasure return did not improve: first {first:.2}, last {last:.2}");
+    for file in ["config.toml", "summary.json", "learner.jsonl", "curves.png", "curves.svg", "checkpoints/latest.json"] {
+        assert!(summary.run_dir.join(file).exists(), "{file} missing");
+    }
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sweep_on_a_two_point_grid_writes_csv_hypervolume_and_plots() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let runs_dir = dir.path().join("runs");
+    let base_text = std::fs::read_to_string(&smoke).unwrap().replace("[run]\n", &format!("[run]\nruns_dir = {runs_dir:?}\n"));
+    std::fs::write(dir.path().join("base.toml"), base_text).unwrap();
+    let sweep_path = dir.path().join("sweep.toml");
+    std::fs::write(
+        &sweep_path,
+        r#"
+name = "two-point"
+base = "base.toml"
+parallel = 2
+total_env_steps = 1500
+reference_point = { time = -25.0, treasure = 0.0 }
+[grid]
+kind = "epsilon"
+product = { time = [0.01], treasure = [0.01, 1.0] }
+[ratio_plot]
+numerator = "treasure"
+denominator = "time"
+y_objective = "treasure"
+"#,
+    )
+    .unwrap();
+    let (sweep_cfg, base) = SweepConfig::load(&sweep_path).unwrap();
+    let s = agent::sweep::sweep(&sweep_cfg, &base, &[server.address().to_string()], false).await.unwrap();
+    assert_eq!(s.points.len(), 2);
+    let returns: Vec<Vec<f64>> = s.points.iter().map(|p| p.eval_return.clone()).collect();
+    assert_eq!(s.hypervolume, hypervolume(&returns, &[-25.0, 0.0]));
+    let csv = std::fs::read_to_string(s.dir.join("points.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "header + 2 points:\n{csv}");
+    assert!(csv.lines().next().unwrap().starts_with("setting_time,setting_treasure,seed,return_time,return_treasure"));
+    for file in ["front.csv", "summary.json", "front.png", "front.svg", "ratio.png", "ratio.svg"] {
+        assert!(s.dir.join(file).exists(), "{file} missing");
+    }
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(s.dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["hypervolume"].as_f64().unwrap(), s.hypervolume);
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_restart_during_training_costs_a_reconnect_not_the_run() {
+    let first = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let port = first.port();
+    let address = first.address().to_string();
+    let runs = tempfile::tempdir().unwrap();
+    let mut cfg = smoke_config(runs.path());
+    cfg.run.total_env_steps = 6000;
+    let run = tokio::spawn(async move { train(cfg, &[address], TrainOptions::default()).await });
+    // Let training get going, then crash the server and bring it back on the same port.
+    let runs_path = runs.path().to_path_buf();
+    tokio::time::timeout(std::time::Duration::from_secs(120), async {
+        loop {
+            let lines = std::fs::read_dir(&runs_path)
+                .ok()
+                .and_then(|mut d| d.next())
+                .and_then(|e| std::fs::read_to_string(e.ok()?.path().join("episodes.csv")).ok())
+                .map_or(0, |t| t.lines().count());
+            if lines > 200 {
+                break;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+        }
+    })
+    .await
+    .expect("training makes progress");
+    first.kill().await.unwrap();
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    let second = LocalServer::start(&ServerOptions { port, ..ServerOptions::default() }).await.unwrap();
+    let summary = run.await.unwrap().expect("the run survives the restart");
+    assert_eq!(summary.env_steps, 6000);
+    second.stop().await.unwrap();
+}
