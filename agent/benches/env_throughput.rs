@@ -1,6 +1,6 @@
 //! Env-server throughput: in-process Python vs. through the server from Rust.
 //!
-//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000]`
+//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000 --batch-sizes 1,8,32]`
 //!
 //! For each B in {1, 8, 32}, in one run on the same machine:
 //! - in-process: `python -m env_server.bench_inprocess --raw` steps B Task instances
@@ -25,6 +25,8 @@ struct Figures {
     env_steps_per_s: f64,
     p50_ms: f64,
     p99_ms: f64,
+    /// Remote only: one Reset of all B instances, through the server.
+    reset_ms: f64,
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
@@ -43,7 +45,7 @@ fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
     let line = String::from_utf8_lossy(&out.stdout);
     let v: serde_json::Value = serde_json::from_str(line.trim()).expect("one JSON line");
     let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} in {line}"));
-    Figures { env_steps_per_s: f("env_steps_per_s"), p50_ms: f("call_p50_ms"), p99_ms: f("call_p99_ms") }
+    Figures { env_steps_per_s: f("env_steps_per_s"), p50_ms: f("call_p50_ms"), p99_ms: f("call_p99_ms"), reset_ms: f64::NAN }
 }
 
 async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, stream: bool) -> Figures {
@@ -51,7 +53,9 @@ async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, st
     if stream {
         session.use_stream();
     }
+    let t0 = Instant::now();
     session.reset(&[], &[]).await.unwrap();
+    let reset_ms = t0.elapsed().as_secs_f64() * 1e3;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let space = session.spec().action_space.clone();
     let actions: Vec<HostTensor> = (0..calls).map(|_| random_action(&space, num_envs, &mut rng)).collect();
@@ -73,6 +77,7 @@ async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, st
         env_steps_per_s: (calls * num_envs) as f64 / total,
         p50_ms: percentile(&times, 0.5),
         p99_ms: percentile(&times, 0.99),
+        reset_ms,
     }
 }
 
@@ -85,16 +90,20 @@ fn arg(name: &str, default: &str) -> String {
 async fn main() {
     let env = arg("--env", "humanoid-run");
     let base_calls: usize = arg("--calls", "2000").parse().expect("--calls is a number");
+    let batch_sizes: Vec<usize> = arg("--batch-sizes", "1,8,32")
+        .split(',')
+        .map(|b| b.trim().parse().expect("--batch-sizes is a comma-separated list of numbers"))
+        .collect();
     let server = LocalServer::start(&ServerOptions::default()).await.expect("start env_server");
     let client = EnvClient::connect(server.address()).await.expect("connect");
     println!("env_throughput: {env}, in-process Python (raw Task loop) vs. Rust client -> env_server on 127.0.0.1");
     println!(
-        "{:>3} {:>7} | {:>12} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9}",
+        "{:>3} {:>7} | {:>12} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9} | {:>9}",
         "B", "calls", "inproc st/s", "p50 ms", "p99 ms", "unary st/s", "ratio", "p50 ms", "p99 ms", "stream st/s",
-        "ratio", "p50 ms", "p99 ms"
+        "ratio", "p50 ms", "p99 ms", "reset ms"
     );
     let mut summary = Vec::new();
-    for num_envs in [1usize, 8, 32] {
+    for num_envs in batch_sizes {
         // Same env-step budget per B (at least 100 calls).
         let calls = (base_calls / num_envs).max(100);
         let local = in_process(&env, num_envs, calls);
@@ -103,9 +112,9 @@ async fn main() {
         let ru = unary.env_steps_per_s / local.env_steps_per_s;
         let rs = stream.env_steps_per_s / local.env_steps_per_s;
         println!(
-            "{num_envs:>3} {calls:>7} | {:>12.0} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3}",
+            "{num_envs:>3} {calls:>7} | {:>12.0} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3} | {:>9.2}",
             local.env_steps_per_s, local.p50_ms, local.p99_ms, unary.env_steps_per_s, ru, unary.p50_ms, unary.p99_ms,
-            stream.env_steps_per_s, rs, stream.p50_ms, stream.p99_ms
+            stream.env_steps_per_s, rs, stream.p50_ms, stream.p99_ms, unary.reset_ms
         );
         if num_envs == 1 {
             summary.push(format!(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from env_server.envs.dst import DeepSeaTreasure
 from env_server.envs.humanoid_mocap import HumanoidMocap
 from env_server.envs.humanoid_run import HumanoidRun
+from env_server.envs.pendulum import Pendulum
 from env_server.envs.sawyer_peg import SawyerPeg
 from env_server.envs.shadow_orient import ShadowOrient
 from env_server.envs.shadow_touch import ShadowTouch
@@ -15,6 +16,7 @@ REGISTRY: dict[str, type[Task]] = {
     "dst": DeepSeaTreasure,
     "humanoid-mocap": HumanoidMocap,
     "humanoid-run": HumanoidRun,
+    "pendulum": Pendulum,
     "sawyer-peg": SawyerPeg,
     "shadow-orient": ShadowOrient,
     "shadow-touch": ShadowTouch,
