@@ -46,15 +46,21 @@ pub struct ActorContext {
     pub total_env_steps: u64,
 }
 
-/// Maps policy actions to env actions.
+/// Maps policy actions to env actions: continuous ones clipped to [-1, 1] and mapped
+/// linearly onto a finite Box, discrete indices offset by the space's start.
 #[derive(Debug, Clone)]
-enum ActionMap {
+pub enum ActionMap {
+    /// Box bounds per element (`[D]`).
+    #[allow(missing_docs, reason = "bounds named by their fields")]
     Continuous { low: Vec<f32>, high: Vec<f32> },
+    /// First index of the Discrete space.
+    #[allow(missing_docs, reason = "named by its field")]
     Discrete { start: i64 },
 }
 
 impl ActionMap {
-    fn new(space: &Space) -> Result<Self, EnvError> {
+    /// The map for an env action space (Dict spaces are not supported).
+    pub fn new(space: &Space) -> Result<Self, EnvError> {
         match space {
             Space::Box(b) => Ok(ActionMap::Continuous {
                 low: b.low.iter().map(|&v| v as f32).collect(),
@@ -69,8 +75,9 @@ impl ActionMap {
         }
     }
 
-    /// Env action tensor and the per-instance replay action rows.
-    fn apply(&self, actions: &Tensor, b: usize) -> (HostTensor, Vec<f32>) {
+    /// Env action tensor `[B, ...]` and the replay's action rows (`[B, D]` unclipped
+    /// samples, or `[B]` indices).
+    pub fn apply(&self, actions: &Tensor, b: usize) -> (HostTensor, Vec<f32>) {
         match self {
             ActionMap::Continuous { low, high } => {
                 let raw = Vec::<f32>::try_from(&actions.to_kind(Kind::Float).flatten(0, -1)).expect("f32 actions");

@@ -16,6 +16,8 @@
 //! Shape legend used in docs: B batch (env instances or replay samples), M sampled
 //! actions per state, D action dims, K objectives, T snippet length.
 
+#![allow(clippy::result_large_err, reason = "run errors carry paths and sources; they are rare, not on a hot path")]
+
 pub mod actor;
 pub mod algo;
 pub mod checkpoint;

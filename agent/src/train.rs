@@ -15,13 +15,13 @@ use serde::Serialize;
 use tch::{Device, Tensor};
 use tokio::sync::watch;
 
-use crate::actor::{ActorContext, run_actor};
+use crate::actor::{ActionMap, ActorContext, run_actor};
 use crate::algo::mompo::MoMpoLearner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
 use crate::device::{configure_threads, learner_device};
 use crate::env::grpc::EnvClient;
-use crate::env::{Env, EpisodeSummary, HostTensor, MakeOptions};
+use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
 use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
 use crate::metrics::{RunFiles, write_json_atomic};
@@ -30,7 +30,7 @@ use crate::plot::{Figure, PlotError, Series, SeriesKind};
 use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Schedule};
-use crate::spec::{EnvSpec, Space};
+use crate::spec::EnvSpec;
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -144,7 +144,7 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     };
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
     let layout = SnippetLayout {
-        length: cfg.learner.mpo.retrace_length as usize,
+        length: cfg.learner.mpo.retrace_length,
         obs_dim: dims.obs_dim as usize,
         action_width: match dims.action {
             ActionKind::Continuous { dim } => dim as usize,
@@ -153,11 +153,11 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
         num_rewards: objectives.len(),
         discrete: matches!(dims.action, ActionKind::Discrete { .. }),
     };
-    let replay = SnippetReplay::new(layout, cfg.learner.mpo.replay_capacity as usize, cfg.seed);
+    let replay = SnippetReplay::new(layout, cfg.learner.mpo.replay_capacity, cfg.seed);
     let schedule = Arc::new(Schedule::new(
         replay,
         cfg.run.learner_steps_per_env_step,
-        cfg.run.min_replay_transitions.max(cfg.learner.mpo.retrace_length as usize),
+        cfg.run.min_replay_transitions.max(cfg.learner.mpo.retrace_length),
         counters,
     ));
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
@@ -330,34 +330,14 @@ pub async fn evaluate(client: &EnvClient, cfg: &TrainConfig, policy: ActorPolicy
     let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
     // Seeds disjoint from the training sessions'.
     let mut env = client.make(&make_options(cfg, num_envs, cfg.seed + 1_000_000)).await?;
-    let space = env.spec().action_space.clone();
+    let map = ActionMap::new(&env.spec().action_space)?;
     let o = env.spec().observation_space.flat_dim();
     let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
     let mut done = Vec::new();
     while done.len() < episodes {
         let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
         let out = tch::no_grad(|| policy.act(&obs_t, true));
-        let action = match &space {
-            Space::Box(b) => {
-                let raw = Vec::<f32>::try_from(&out.actions.flatten(0, -1)).expect("f32 actions");
-                let d = b.numel();
-                let env_action: Vec<f32> = raw
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &a)| {
-                        let (lo, hi) = (b.low[i % d] as f32, b.high[i % d] as f32);
-                        let a = a.clamp(-1.0, 1.0);
-                        if lo.is_finite() && hi.is_finite() { lo + (a + 1.0) * 0.5 * (hi - lo) } else { a }
-                    })
-                    .collect();
-                HostTensor::from_f32(vec![num_envs, d], &env_action)
-            }
-            Space::Discrete(d) => {
-                let idx = Vec::<i64>::try_from(&out.actions.flatten(0, -1)).expect("i64 actions");
-                HostTensor::from_i64(vec![num_envs], &idx.iter().map(|a| a + d.start).collect::<Vec<_>>())
-            }
-            Space::Dict(_) => unreachable!("rejected by LearnerDims::from_spec"),
-        };
+        let (action, _) = map.apply(&out.actions, num_envs);
         let step = env.step(&action).await?;
         done.extend(step.episodes);
         obs = step.observation.to_flat_f32();

@@ -87,7 +87,7 @@ impl Observation {
             return self.leaves[0].tensor.to_f32_vec();
         }
         let per_leaf: Vec<Vec<f32>> = self.leaves.iter().map(|l| l.tensor.to_f32_vec()).collect();
-        let widths: Vec<usize> = per_leaf.iter().map(|v| if b == 0 { 0 } else { v.len() / b }).collect();
+        let widths: Vec<usize> = per_leaf.iter().map(|v| v.len().checked_div(b).unwrap_or(0)).collect();
         let mut out = Vec::with_capacity(per_leaf.iter().map(Vec::len).sum());
         for row in 0..b {
             for (values, &w) in per_leaf.iter().zip(&widths) {
