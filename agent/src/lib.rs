@@ -9,7 +9,7 @@
 //!
 //! Module map:
 //! - [`spec`]: plain-Rust env spec (spaces, objectives).
-//! - [`env`]: the `Env` trait, the gRPC client (the only code that sees proto types),
+//! - [`env`]: the `Env` trait, the gRPC client (`env::grpc`, the only code that sees proto types),
 //!   a local env for tests, and a helper that starts a local `env_server` process.
 //! - `config`, `nets`, `algo`, `checkpoint`: the learner (pure; no tokio, tonic or proto).
 //!

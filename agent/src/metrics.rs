@@ -72,11 +72,15 @@ impl RunFiles {
         writeln!(w, "{}", row.join(","))
     }
 
-    /// Append one JSON line to `learner.jsonl`.
+    /// Append one JSON line to `learner.jsonl`, then flush both files so a run can be
+    /// followed with `tail -f` (records come every `log_period` learner steps).
     pub fn learner<T: Serialize>(&self, record: &T) -> std::io::Result<()> {
         let line = serde_json::to_string(record).map_err(std::io::Error::other)?;
-        let mut w = self.learner.lock().unwrap_or_else(|p| p.into_inner());
-        writeln!(w, "{line}")
+        {
+            let mut w = self.learner.lock().unwrap_or_else(|p| p.into_inner());
+            writeln!(w, "{line}")?;
+        }
+        self.flush()
     }
 
     /// Flush both files (at checkpoints and at exit).
