@@ -73,11 +73,17 @@ fn status_kind(code: tonic::Code) -> StatusKind {
     }
 }
 
-/// UNAVAILABLE, or a connection that broke under a call: tonic reports the latter as
-/// UNKNOWN with the transport error as its source (a server's own UNKNOWN has none).
+/// UNAVAILABLE, or a connection that broke under a call. tonic reports the latter as
+/// CANCELLED ("operation was canceled", when h2 resets the stream) or as UNKNOWN with
+/// the transport error as its source (a server's own UNKNOWN has none). This client
+/// never cancels its own calls (a dropped call observes no status), so CANCELLED
+/// always means the connection went away.
 fn is_unavailable(status: &tonic::Status) -> bool {
-    status.code() == tonic::Code::Unavailable
-        || (status.code() == tonic::Code::Unknown && std::error::Error::source(status).is_some())
+    match status.code() {
+        tonic::Code::Unavailable | tonic::Code::Cancelled => true,
+        tonic::Code::Unknown => std::error::Error::source(status).is_some(),
+        _ => false,
+    }
 }
 
 fn status_error(call: &'static str, status: &tonic::Status) -> EnvError {
