@@ -117,7 +117,8 @@ impl MultiCritic {
         for (i, layer) in self.heads.iter().enumerate() {
             x = layer.forward(&x);
             if i < last {
-                x = x.elu();
+                // In place: ELU's backward uses its result, Linear's does not need it.
+                let _ = x.elu_();
             }
         }
         x.squeeze_dim(-1).transpose(0, 1)
@@ -125,7 +126,18 @@ impl MultiCritic {
 
     /// Shared first layer for actions `[.., N, a]` against states `[N, obs]`.
     fn first_layer(&self, obs: &Tensor, action_features: &Tensor) -> Tensor {
-        let h = self.obs_layer.forward(obs) + self.action_layer.forward(action_features);
+        // Add the per-state part into the [.., N, h1] action part in place: at M = 20
+        // samples that tensor is the largest of the step, and a second copy of it costs
+        // more memory traffic than the smaller GEMM saves (Linear's backward does not
+        // need its output, so the in-place add is autograd-safe).
+        let mut h = self.action_layer.forward(action_features);
+        let per_state = self.obs_layer.forward(obs);
+        if h.dim() >= 2 && h.size()[h.dim() - 2] == per_state.size()[0] {
+            let _ = h.g_add_(&per_state);
+        } else {
+            // The one-hot table of all actions is `[A, 1, h1]`: broadcast out of place.
+            h = h + per_state;
+        }
         self.norm.forward_tanh(&h)
     }
 

@@ -53,7 +53,11 @@ impl Norm {
 
     /// LayerNorm then tanh. # Shapes `[.., dim] -> [.., dim]`.
     pub fn forward_tanh(&self, x: &Tensor) -> Tensor {
-        nn::Module::forward(&self.inner, x).tanh()
+        // In place: LayerNorm's backward needs its input, not its output; tanh's uses
+        // its result.
+        let mut y = nn::Module::forward(&self.inner, x);
+        let _ = y.tanh_();
+        y
     }
 }
 
@@ -94,7 +98,9 @@ impl LayerNormMlp {
     pub fn forward(&self, x: &Tensor) -> Tensor {
         let mut h = self.norm.forward_tanh(&self.first.forward(x));
         for layer in &self.hidden {
-            h = layer.forward(&h).elu();
+            h = layer.forward(&h);
+            // In place: ELU's backward uses its result, Linear's does not need it.
+            let _ = h.elu_();
         }
         h
     }
