@@ -27,6 +27,7 @@ Box(-1, 1, (20,), float32), mapped linearly to each position actuator's ctrlrang
 
 from __future__ import annotations
 
+import abc
 import importlib.util
 import math
 import os
@@ -111,8 +112,9 @@ class ShadowHandTask(Task):
         self._rng = np.random.default_rng()
 
     # -- subclass hooks -------------------------------------------------------------------
+    @abc.abstractmethod
     def _edit(self, spec: mujoco.MjSpec) -> None:
-        raise NotImplementedError
+        """Add the task's object (bodies, sites, sensors) to the hand's MjSpec."""
 
     def _reset_object(self, rng: np.random.Generator) -> None:
         """Set the object's state in self.data after mj_resetData (before mj_forward)."""
@@ -123,8 +125,9 @@ class ShadowHandTask(Task):
     def _after_reset(self) -> None:
         """Called after mj_forward at reset (e.g. to record the object's force)."""
 
+    @abc.abstractmethod
     def _reward_and_done(self) -> tuple[np.ndarray, bool]:
-        raise NotImplementedError
+        """The step's reward vector (objective order) and whether the task succeeded."""
 
     # -- shared machinery -----------------------------------------------------------------
     def ctrl_from_action(self, action: np.ndarray) -> np.ndarray:
@@ -212,8 +215,9 @@ class ForceObjectTask(ShadowHandTask):
         self._prev_force = self.object_force()
         self._impact = 0.0
 
+    @abc.abstractmethod
     def _success(self) -> bool:
-        raise NotImplementedError
+        """Whether the object's state completes the task this step."""
 
     def _reward_and_done(self) -> tuple[np.ndarray, bool]:
         force = self.object_force()
