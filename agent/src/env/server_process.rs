@@ -56,6 +56,9 @@ impl LocalServer {
         command
             .args(["-m", "env_server", "--host", "127.0.0.1", "--port", &options.port.to_string()])
             .args(&options.extra_args)
+            // A spawned server is a helper of this process: only its warnings and errors
+            // reach the terminal (pass --log-level in extra_args to see more).
+            .args(if options.extra_args.iter().any(|a| a == "--log-level") { &[][..] } else { &["--log-level", "WARNING"][..] })
             .env("MUJOCO_GL", std::env::var("MUJOCO_GL").unwrap_or_else(|_| "disable".into()))
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
