@@ -52,7 +52,7 @@ fn continuous_mompo_step_fits_the_critic_and_keeps_duals_positive() {
 #[test]
 fn discrete_scalarized_step_uses_one_critic_and_exact_estep() {
     tch::set_num_threads(1);
-    let mut learner = discrete_scalarized_learner();
+    let mut learner = discrete_scalarized_learner(10_000);
     let batch = random_batch(&learner, 12);
     let stats = learner.step(&batch).unwrap();
     assert_eq!(
@@ -65,7 +65,11 @@ fn discrete_scalarized_step_uses_one_critic_and_exact_estep() {
         (1, 1, 1, 1)
     );
     assert!(stats.estep_kl[0] >= 0.0);
-    for _ in 0..40 {
+    // With the target networks fixed (the period is longer than the test), the critic
+    // regresses onto fixed Retrace targets, so its loss must fall. (With the shared
+    // test config's period of 4, gamma = 0.999 bootstrapping on a random batch makes
+    // the targets chase the critic, and the loss need not fall.)
+    for _ in 0..150 {
         learner.step(&batch).unwrap();
     }
     let after = learner.step(&batch).unwrap();

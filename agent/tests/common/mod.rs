@@ -58,8 +58,9 @@ pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> MoMpo
 }
 
 /// Discrete scalarized MPO with one-step TD (A.2 settings).
-pub fn discrete_scalarized_learner() -> MoMpoLearner {
+pub fn discrete_scalarized_learner(target_update_period: u64) -> MoMpoLearner {
     let mut cfg = small_config();
+    cfg.mpo.target_update_period = target_update_period;
     cfg.algorithm = Algorithm::ScalarizedMpo {
         epsilon: 0.1,
         weights: vec![
