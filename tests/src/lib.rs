@@ -3,8 +3,19 @@
 //! Every test starts its own real `env_server` on 127.0.0.1 with an OS-chosen
 //! port (through [`agent::env::server_process::LocalServer`]) and stops it.
 
+use std::path::Path;
+
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::run_config::TrainConfig;
+
+/// `configs/smoke/dst.toml` (a seconds-long DST run) writing its runs under `runs_dir`.
+pub fn smoke_config(runs_dir: &Path) -> TrainConfig {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let mut cfg = TrainConfig::load(&path).expect("smoke config loads");
+    cfg.run.runs_dir = runs_dir.to_path_buf();
+    cfg
+}
 
 /// A started server and a client connected to it.
 #[derive(Debug)]

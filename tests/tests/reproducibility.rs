@@ -4,18 +4,9 @@
 //! runs training concurrently in one process (other tests, or a sweep with
 //! `parallel > 1`) draw from the same stream.
 
-use std::path::Path;
-
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train};
-
-fn smoke_config(runs_dir: &Path) -> TrainConfig {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
-    let mut cfg = TrainConfig::load(&path).expect("smoke config loads");
-    cfg.run.runs_dir = runs_dir.to_path_buf();
-    cfg
-}
+use integration_tests::smoke_config;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_same_config_and_seed_give_the_same_learning_curve() {

@@ -4,48 +4,9 @@ use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::pareto::hypervolume;
-use agent::run_config::TrainConfig;
 use agent::sweep::SweepConfig;
 use agent::train::{TrainOptions, train};
-
-fn smoke_config(runs_dir: &Path) -> TrainConfig {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
-    let mut cfg = TrainConfig::load(&path).expect("smoke config loads");
-    cfg.run.runs_dir = runs_dir.to_path_buf();
-    cfg
-}
-
-/// Mean of column `name` over rows `range` of a run's episodes.csv.
-fn episode_mean(run_dir: &Path, name: &str, take_last: bool, n: usize) -> f64 {
-    let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
-    let mut lines = text.lines();
-    let col = lines.next().unwrap().split(',').position(|c| c == name).expect("column");
-    let values: Vec<f64> = lines.map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
-    assert!(values.len() >= 2 * n, "only {} episodes", values.len());
-    let slice = if take_last { &values[values.len() - n..] } else { &values[..n] };
-    slice.iter().sum::<f64>() / n as f64
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn training_on_dst_improves_the_preferred_objective() {
-    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
-    let runs = tempfile::tempdir().unwrap();
-    let cfg = smoke_config(runs.path());
-    let summary = train(cfg, &[server.address().to_string()], TrainOptions::default()).await.unwrap();
-    assert_eq!(summary.env_steps, 8000);
-    // (8000 - 500 warm-up) * 0.25 learner steps.
-    assert_eq!(summary.learner_steps, 1875);
-    // epsilon_treasure / epsilon_time = 100 prefers treasure: the random start mostly
-    // takes the 0.7 next to the start; the trained policy reaches farther treasures.
-    let first = episode_mean(&summary.run_dir, "return_treasure", false, 200);
-    let last = episode_mean(&summary.run_dir, "return_treasure", true, 200);
-    // +1.0 is about three standard errors of a 200-episode mean here.
-    assert!(last > first + 1.0, "treasure return did not improve: first {first:.2}, last {last:.2}");
-    for file in ["config.toml", "summary.json", "learner.jsonl", "curves.png", "curves.svg", "checkpoints/latest.json"] {
-        assert!(summary.run_dir.join(file).exists(), "{file} missing");
-    }
-    server.stop().await.unwrap();
-}
+use integration_tests::smoke_config;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sweep_on_a_two_point_grid_writes_csv_hypervolume_and_plots() {
