@@ -13,6 +13,7 @@ pub mod mompo;
 pub mod mstep;
 pub mod objectives;
 pub mod retrace;
+pub mod stats;
 
 pub use batch::{BatchError, SnippetBatch};
 pub use mompo::{LearnerError, LearnerStats, MoMpoLearner, PhaseTimings};

@@ -26,6 +26,7 @@ use super::dual::Duals;
 use super::estep::{EStepOutput, exact_estep, sampled_estep};
 use super::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
 use super::objectives::{BoundObjectives, LearnerDims, QSource, bind_config};
+pub use super::stats::{LearnerStats, PhaseTimings};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use crate::config::{ConfigError, LearnerConfig};
 use crate::device::synchronize;
@@ -47,38 +48,17 @@ pub enum LearnerError {
     Torch(#[from] tch::TchError),
 }
 
-/// Wall-clock milliseconds per phase of one step.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct PhaseTimings {
-    /// Sampling, target critic on all samples, Retrace, critic update.
-    pub policy_evaluation_ms: f64,
-    /// Weights and temperature losses.
-    pub e_step_ms: f64,
-    /// Policy forward, M-step losses, backward, policy and dual updates.
-    pub m_step_ms: f64,
-    /// Target network copy (when due) and bookkeeping.
-    pub target_update_ms: f64,
-}
-
-/// What one learner step measured (host values, for logging).
-#[derive(Debug, Clone, PartialEq)]
-pub struct LearnerStats {
-    /// Learner steps done, including this one.
-    pub step: u64,
-    /// Per critic head: 0.5 * mean squared Retrace error before the update.
-    pub critic_loss: Vec<f32>,
-    /// Per objective: eta_k after the update.
-    pub temperature: Vec<f32>,
-    /// Per objective: realised KL(q_k || pi_old).
-    pub estep_kl: Vec<f32>,
-    /// Per objective: mean Q_k over the sampled actions.
-    pub q_mean: Vec<f32>,
-    /// (alpha_mu, alpha_Sigma) or (alpha) after the update.
-    pub alpha: Vec<f32>,
-    /// (KL_mu, KL_Sigma) or (KL) between the target and online policy before the update.
-    pub policy_kl: Vec<f32>,
-    /// Phase timings.
-    pub timings: PhaseTimings,
+/// A target network (C.1): same layout as `online`'s network, built by `build` on a new
+/// VarStore on the same device, parameters copied, frozen (no gradients).
+fn frozen_copy<N>(
+    online: &nn::VarStore,
+    build: impl FnOnce(&nn::VarStore) -> N,
+) -> Result<(nn::VarStore, N), tch::TchError> {
+    let mut vs = nn::VarStore::new(online.device());
+    let net = build(&vs);
+    vs.copy(online)?;
+    vs.freeze();
+    Ok((vs, net))
 }
 
 /// The MO-MPO / scalarized MPO learner: networks, targets, optimizers, duals, counter.
@@ -137,15 +117,9 @@ impl MoMpoLearner {
             dims.obs_dim,
             dims.action,
         );
-        let mut target_policy_vs = nn::VarStore::new(device);
-        let target_policy = Policy::new(
-            &(target_policy_vs.root() / "policy"),
-            net,
-            dims.obs_dim,
-            dims.action,
-        );
-        target_policy_vs.copy(&policy_vs)?;
-        target_policy_vs.freeze();
+        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, |vs| {
+            Policy::new(&(vs.root() / "policy"), net, dims.obs_dim, dims.action)
+        })?;
         let critic_vs = nn::VarStore::new(device);
         let critic = MultiCritic::new(
             &(critic_vs.root() / "critic"),
@@ -154,16 +128,9 @@ impl MoMpoLearner {
             dims.action,
             heads,
         );
-        let mut target_critic_vs = nn::VarStore::new(device);
-        let target_critic = MultiCritic::new(
-            &(target_critic_vs.root() / "critic"),
-            net,
-            dims.obs_dim,
-            dims.action,
-            heads,
-        );
-        target_critic_vs.copy(&critic_vs)?;
-        target_critic_vs.freeze();
+        let (target_critic_vs, target_critic) = frozen_copy(&critic_vs, |vs| {
+            MultiCritic::new(&(vs.root() / "critic"), net, dims.obs_dim, dims.action, heads)
+        })?;
         let mpo = &cfg.mpo;
         let adam = AdamConfig::new(mpo.learning_rate, mpo.adam_eps);
         let policy_opt = Adam::for_var_store(&policy_vs, adam);

@@ -1,0 +1,37 @@
+//! What one learner step reports (host values, for logs and progress displays).
+//!
+//! Shape legend: K objectives, C learned critics.
+
+/// Wall-clock milliseconds per phase of one step.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PhaseTimings {
+    /// Sampling, target critic on all samples, Retrace, critic update.
+    pub policy_evaluation_ms: f64,
+    /// Weights and temperature losses.
+    pub e_step_ms: f64,
+    /// Policy forward, M-step losses, backward, policy and dual updates.
+    pub m_step_ms: f64,
+    /// Target network copy (when due) and bookkeeping.
+    pub target_update_ms: f64,
+}
+
+/// What one learner step measured (host values, for logging).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnerStats {
+    /// Learner steps done, including this one.
+    pub step: u64,
+    /// Per critic head: 0.5 * mean squared Retrace error before the update.
+    pub critic_loss: Vec<f32>,
+    /// Per objective: eta_k after the update.
+    pub temperature: Vec<f32>,
+    /// Per objective: realised KL(q_k || pi_old).
+    pub estep_kl: Vec<f32>,
+    /// Per objective: mean Q_k over the sampled actions.
+    pub q_mean: Vec<f32>,
+    /// (alpha_mu, alpha_Sigma) or (alpha) after the update.
+    pub alpha: Vec<f32>,
+    /// (KL_mu, KL_Sigma) or (KL) between the target and online policy before the update.
+    pub policy_kl: Vec<f32>,
+    /// Phase timings.
+    pub timings: PhaseTimings,
+}
