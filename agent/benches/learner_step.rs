@@ -13,7 +13,7 @@
 //! Run: `cargo bench -p agent --bench learner_step` (prints its figure last).
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
-use agent::algo::{LearnerDims, MoMpoLearner, SnippetBatch};
+use agent::algo::{LearnerDims, Learner, SnippetBatch};
 use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
 use agent::nets::ActionKind;
 use tch::{Kind, Tensor};
@@ -50,6 +50,7 @@ fn main() {
             tanh_on_action_mean: false,
             min_variance: 1e-8,
             tanh_on_critic_action: false,
+            ..NetworkConfig::default()
         },
         ..LearnerConfig::default()
     };
@@ -67,8 +68,9 @@ fn main() {
         obs_dim,
         action: ActionKind::Continuous { dim: act_dim },
         reward_names: vec!["task".into(), "action_norm".into()],
+        obs_leaves: Vec::new(),
     };
-    let mut learner = MoMpoLearner::new(cfg.clone(), dims, device).expect("valid config");
+    let mut learner = Learner::new(cfg.clone(), dims, device).expect("valid config");
     tch::manual_seed(0);
     let opts = (Kind::Float, tch::Device::Cpu);
     let batch = SnippetBatch {
@@ -77,6 +79,7 @@ fn main() {
         rewards: Tensor::randn([t, b, 2], opts),
         discounts: Tensor::ones([t, b], opts),
         behaviour_log_probs: Tensor::randn([t, b], opts) - 20.0,
+        valid: Tensor::ones([t, b], opts),
     }
     .to_device(device);
     println!(

@@ -1,6 +1,7 @@
 //! Saving and restoring the whole learner state in a directory:
 //! - `params.safetensors`: online and target policy and critic variables
-//!   (`policy/<name>`, `target_policy/<name>`, `critic/<name>`, `target_critic/<name>`)
+//!   (`policy/<name>`, `target_policy/<name>`, `critic/<name>`, and `target_critic/<name>`
+//!   for Q critics; V-MPO's value critics have no target)
 //!   and the raw dual parameters (`duals/temperature`, `duals/alpha`);
 //! - `optimizer.safetensors`: Adam moments of the policy, critic and dual optimizers
 //!   (`<optimizer>/exp_avg/<name>`, `<optimizer>/exp_avg_sq/<name>`);
@@ -13,7 +14,8 @@
 //! checkpoint complete under one of those names.
 
 use crate::algo::adam::AdamStateError;
-use crate::algo::{LearnerDims, LearnerError, MoMpoLearner};
+use crate::algo::state::Critics;
+use crate::algo::{Learner, LearnerDims, LearnerError};
 use crate::config::LearnerConfig;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -131,7 +133,7 @@ fn read_tensors(path: &Path, device: Device) -> Result<HashMap<String, Tensor>, 
         .collect())
 }
 
-impl MoMpoLearner {
+impl Learner {
     /// Writes the full learner state to `dir` atomically (see module docs).
     pub fn save_checkpoint(&self, dir: &Path) -> Result<(), CheckpointError> {
         let name = dir
@@ -152,7 +154,9 @@ impl MoMpoLearner {
         let mut params = prefixed(&self.policy_vs, "policy");
         params.extend(prefixed(&self.target_policy_vs, "target_policy"));
         params.extend(prefixed(&self.critic_vs, "critic"));
-        params.extend(prefixed(&self.target_critic_vs, "target_critic"));
+        if let Critics::Q { target_vs, .. } = &self.critics {
+            params.extend(prefixed(target_vs, "target_critic"));
+        }
         params.push((
             "duals/temperature".into(),
             self.duals.temperature_param.detach(),
@@ -227,7 +231,7 @@ impl MoMpoLearner {
                 message,
             });
         }
-        let mut learner = MoMpoLearner::new(state.config.clone(), state.dims.clone(), device)?;
+        let mut learner = Learner::new(state.config.clone(), state.dims.clone(), device)?;
         let params_path = dir.join("params.safetensors");
         let params = read_tensors(&params_path, device)?;
         load_prefixed(&learner.policy_vs, "policy", &params, &params_path)?;
@@ -238,12 +242,9 @@ impl MoMpoLearner {
             &params_path,
         )?;
         load_prefixed(&learner.critic_vs, "critic", &params, &params_path)?;
-        load_prefixed(
-            &learner.target_critic_vs,
-            "target_critic",
-            &params,
-            &params_path,
-        )?;
+        if let Critics::Q { target_vs, .. } = &learner.critics {
+            load_prefixed(target_vs, "target_critic", &params, &params_path)?;
+        }
         for (key, dst) in [
             ("duals/temperature", &mut learner.duals.temperature_param),
             ("duals/alpha", &mut learner.duals.alpha_param),

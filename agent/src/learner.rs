@@ -14,7 +14,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
-use crate::algo::mompo::{LearnerStats, MoMpoLearner};
+use crate::algo::{Learner, LearnerStats};
 use crate::checkpoint::CheckpointError;
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::PolicySnapshot;
@@ -41,7 +41,7 @@ struct Latest {
 pub enum LearnerLoopError {
     /// The learner step failed.
     #[error(transparent)]
-    Step(#[from] crate::algo::mompo::LearnerError),
+    Step(#[from] crate::algo::LearnerError),
     /// Writing or reading a checkpoint failed.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
@@ -63,7 +63,7 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnerLoopError + '_ {
 }
 
 /// Write a checkpoint of `learner` and `counters` under `<run>/checkpoints/`.
-pub fn save_run_checkpoint(run_dir: &Path, learner: &MoMpoLearner, counters: &Counters) -> Result<PathBuf, LearnerLoopError> {
+pub fn save_run_checkpoint(run_dir: &Path, learner: &Learner, counters: &Counters) -> Result<PathBuf, LearnerLoopError> {
     let dir = run_dir.join("checkpoints");
     let name = format!("step_{:09}", learner.step_count());
     let ckpt = dir.join(&name);
@@ -129,7 +129,7 @@ pub struct LearnerRecord {
 #[derive(Debug)]
 pub struct LearnerContext {
     /// The learner (fresh or restored).
-    pub learner: MoMpoLearner,
+    pub learner: Learner,
     /// Rate limiter and replay.
     pub schedule: Arc<Schedule>,
     /// Where published policies go.
@@ -147,11 +147,11 @@ pub struct LearnerContext {
 }
 
 /// Run until the schedule stops; always writes a final checkpoint. Returns the learner.
-pub fn run_learner(ctx: LearnerContext) -> Result<MoMpoLearner, LearnerLoopError> {
+pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
     let LearnerContext { mut learner, schedule, params, files, publish_period, checkpoint_period, log_period, latest } = ctx;
     let started = Instant::now();
     let device = learner.device();
-    let batch_size = learner.config().mpo.batch_size;
+    let batch_size = learner.settings().batch_size;
     let result = (|| -> Result<(), LearnerLoopError> {
         while schedule.wait_for_work() {
             let t0 = Instant::now();

@@ -1,11 +1,12 @@
-//! Multi-objective MPO agents that train on environments served by `env_server`.
+//! Multi-objective MPO agents (MO-MPO, MO-V-MPO and their scalarized baselines) that
+//! train on environments served by `env_server`.
 //!
 //! Vocabulary (shared by every module):
 //! - **objective**: one named entry of the vector reward (`task`, `action_norm`, ...);
 //!   the env declares them in [`spec::EnvSpec::objectives`], configs bind to them by name.
 //! - **session**: B environment instances on a server, stepped together ([`env::Env`]).
-//! - **ε (epsilon)**: the per-objective KL bound that encodes preference (MO-MPO);
-//!   scalarized baselines use weights instead.
+//! - **ε (epsilon)**: the per-objective KL bound that encodes preference (MO-MPO,
+//!   MO-V-MPO); scalarized baselines use weights instead.
 //!
 //! Module map:
 //! - [`spec`]: plain-Rust env spec (spaces, objectives).
@@ -13,8 +14,8 @@
 //!   a local env for tests, and a helper that starts a local `env_server` process.
 //! - `config`, `nets`, `algo`, `checkpoint`: the learner (pure; no tokio, tonic or proto).
 //!
-//! Shape legend used in docs: B batch (env instances or replay samples), M sampled
-//! actions per state, D action dims, K objectives, T snippet length.
+//! Shape legend used in docs: B batch (env instances, replay samples or unrolls), M
+//! sampled actions per state, D action dims, K objectives, T snippet or unroll length.
 
 #![allow(clippy::result_large_err, reason = "run errors carry paths and sources; they are rare, not on a hot path")]
 

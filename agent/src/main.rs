@@ -25,7 +25,7 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Train one agent (MO-MPO or scalarized MPO) from a TOML config.
+    /// Train one agent (MO-MPO, MO-V-MPO or a scalarized baseline) from a TOML config.
     Train {
         /// Run config, e.g. configs/mompo/dst.toml.
         #[arg(long, required_unless_present = "resume")]

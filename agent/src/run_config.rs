@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Algorithm, ConfigError, LearnerConfig};
+use crate::config::{ConfigError, LearnerConfig};
 
 /// Which environment the actors step, and where.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -56,10 +56,11 @@ fn default_num_actors() -> usize {
 pub struct RunConfig {
     /// Env steps (summed over instances) after which training stops.
     pub total_env_steps: u64,
-    /// Learner steps per env step once the replay is warm. Actors wait for the learner
-    /// (and the learner for the actors), so results do not depend on machine speed.
+    /// Off-policy only: learner steps per env step once the replay is warm. Actors
+    /// wait for the learner (and the learner for the actors), so results do not depend
+    /// on machine speed. On-policy runs take one step per `vmpo.batch_size` unrolls.
     pub learner_steps_per_env_step: f64,
-    /// Transitions in the replay before the learner starts.
+    /// Off-policy only: transitions in the replay before the learner starts.
     pub min_replay_transitions: usize,
     /// Learner steps between policy publications to the actors.
     pub publish_period: u64,
@@ -160,10 +161,7 @@ impl TrainConfig {
 
     /// Short algorithm name for run directories and tables.
     pub fn algo_name(&self) -> &'static str {
-        match self.learner.algorithm {
-            Algorithm::MoMpo => "mompo",
-            Algorithm::ScalarizedMpo { .. } => "mpo",
-        }
+        self.learner.algorithm.short_name()
     }
 }
 

@@ -1,11 +1,15 @@
 //! The rate limiter between actors and the learner (appendix C.1's asynchronous
 //! actor-learner loop, made reproducible).
 //!
-//! Once the replay holds `min_replay_transitions`, the learner may take
-//! `floor((env_steps - min_replay) * ratio)` steps in total. Actors wait until the
-//! learner has taken them before stepping further; the learner waits for env steps.
-//! With one actor the interleaving is therefore fixed, and a run with the same
-//! config and seed reproduces its learning curve on the same machine.
+//! Off-policy ([`Pace::Ratio`]): once the replay holds `min_replay_transitions`, the
+//! learner may take `floor((env_steps - min_replay) * ratio)` steps in total.
+//! On-policy ([`Pace::OnPolicy`]): the learner may take `floor(unrolls inserted /
+//! batch_size)` steps, each consuming one batch. Either way actors wait until the
+//! learner has taken the steps allowed so far before stepping further (on-policy, the
+//! next batch is therefore acted by the policy that the last batch produced), and the
+//! learner waits for env steps. With one actor the interleaving is therefore fixed,
+//! and a run with the same config and seed reproduces its learning curve on the same
+//! machine.
 
 use std::sync::{Condvar, Mutex, MutexGuard};
 
@@ -40,6 +44,30 @@ pub struct Counters {
     pub error: Option<String>,
 }
 
+/// How many learner steps the data so far allows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// Off-policy replay: a fixed ratio of learner steps to env steps after warm-up.
+    Ratio {
+        /// Learner steps per env step once warm.
+        learner_steps_per_env_step: f64,
+        /// Transitions in the replay before the first learner step.
+        min_replay_transitions: usize,
+    },
+    /// On-policy unrolls: one learner step per `batch_size` unrolls.
+    OnPolicy {
+        /// Unrolls per learner step.
+        batch_size: usize,
+    },
+}
+
+/// What the replay holds, for the pace.
+#[derive(Debug, Clone, Copy)]
+struct Fill {
+    transitions: u64,
+    inserted: u64,
+}
+
 /// Shared state of one run.
 #[derive(Debug)]
 pub struct Schedule {
@@ -48,20 +76,22 @@ pub struct Schedule {
     actor_wake: tokio::sync::Notify,
     /// The replay, filled by actors and sampled by the learner.
     pub replay: Mutex<SnippetReplay>,
-    ratio: f64,
-    min_replay: u64,
+    pace: Pace,
+    /// Learner steps already done when the replay was made (resumed runs), so that an
+    /// on-policy budget counts only this invocation's unrolls.
+    learner_steps_at_start: u64,
 }
 
 impl Schedule {
     /// A schedule starting from `counters` (non-zero when resuming).
-    pub fn new(replay: SnippetReplay, ratio: f64, min_replay_transitions: usize, counters: Counters) -> Self {
+    pub fn new(replay: SnippetReplay, pace: Pace, counters: Counters) -> Self {
         Self {
+            learner_steps_at_start: counters.learner_steps,
             counters: Mutex::new(counters),
             learner_wake: Condvar::new(),
             actor_wake: tokio::sync::Notify::new(),
             replay: Mutex::new(replay),
-            ratio,
-            min_replay: min_replay_transitions as u64,
+            pace,
         }
     }
 
@@ -74,18 +104,24 @@ impl Schedule {
         self.counters.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Learner steps allowed after `env_steps` env steps with `replayed` transitions stored.
-    fn allowed(&self, c: &Counters, replayed: u64) -> u64 {
-        if replayed < self.min_replay {
-            return c.learner_steps;
+    /// Learner steps allowed in total with `c` and the replay at `fill`.
+    fn allowed(&self, c: &Counters, fill: Fill) -> u64 {
+        match self.pace {
+            Pace::Ratio { learner_steps_per_env_step, min_replay_transitions } => {
+                let min_replay = min_replay_transitions as u64;
+                if fill.transitions < min_replay {
+                    return c.learner_steps;
+                }
+                let warm = c.env_steps.saturating_sub(min_replay) as f64;
+                (warm * learner_steps_per_env_step).floor() as u64
+            }
+            Pace::OnPolicy { batch_size } => self.learner_steps_at_start + fill.inserted / batch_size as u64,
         }
-        let warm = c.env_steps.saturating_sub(self.min_replay) as f64;
-        (warm * self.ratio).floor() as u64
     }
 
-    fn replayed_transitions(&self) -> u64 {
+    fn fill(&self) -> Fill {
         let r = self.replay.lock().unwrap_or_else(|e| e.into_inner());
-        (r.len() * r.layout().length) as u64
+        Fill { transitions: (r.len() * r.layout().length) as u64, inserted: r.inserted() }
     }
 
     /// Record env steps and finished episodes' returns from an actor; wake the learner.
@@ -109,10 +145,10 @@ impl Schedule {
             let notified = self.actor_wake.notified();
             tokio::pin!(notified);
             notified.as_mut().enable();
-            let replayed = self.replayed_transitions();
+            let fill = self.fill();
             {
                 let c = self.lock();
-                if c.stop || c.learner_steps >= self.allowed(&c, replayed) {
+                if c.stop || c.learner_steps >= self.allowed(&c, fill) {
                     return;
                 }
             }
@@ -128,12 +164,12 @@ impl Schedule {
                 return false;
             }
             drop(c);
-            let replayed = self.replayed_transitions();
+            let fill = self.fill();
             c = self.lock();
             if c.stop {
                 return false;
             }
-            if c.learner_steps < self.allowed(&c, replayed) {
+            if c.learner_steps < self.allowed(&c, fill) {
                 return true;
             }
             c = self.learner_wake.wait(c).unwrap_or_else(|e| e.into_inner());
@@ -169,8 +205,9 @@ mod tests {
     use crate::replay::{Snippet, SnippetLayout};
 
     fn schedule(ratio: f64, min_replay: usize) -> Schedule {
-        let layout = SnippetLayout { length: 1, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true };
-        Schedule::new(SnippetReplay::new(layout, 1000, 0), ratio, min_replay, Counters::default())
+        let layout = SnippetLayout { length: 1, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true, on_policy: false };
+        let pace = Pace::Ratio { learner_steps_per_env_step: ratio, min_replay_transitions: min_replay };
+        Schedule::new(SnippetReplay::new(layout, 1000, 0), pace, Counters::default())
     }
 
     fn fill(s: &Schedule, n: usize) {
@@ -182,6 +219,7 @@ mod tests {
                 rewards: vec![0.0],
                 discounts: vec![1.0],
                 behaviour_log_probs: vec![0.0],
+                valid: vec![1.0],
             };
             r.insert(snippet).unwrap();
         }
@@ -192,17 +230,30 @@ mod tests {
         let s = schedule(0.25, 10);
         fill(&s, 9);
         s.add_env_steps(9, []);
-        assert_eq!(s.allowed(&s.counters(), 9), 0, "replay not warm yet");
+        assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "replay not warm yet");
         fill(&s, 11);
         s.add_env_steps(11, []);
         // 20 env steps, 10 past warm-up, ratio 1/4 -> 2 learner steps.
-        assert_eq!(s.allowed(&s.counters(), 20), 2);
+        assert_eq!(s.allowed(&s.counters(), s.fill()), 2);
         assert!(s.wait_for_work());
         s.learner_stepped();
         assert!(s.wait_for_work());
         s.learner_stepped();
         s.stop(None);
         assert!(!s.wait_for_work(), "no third step: the budget is 2, and the run stopped");
+    }
+
+    #[test]
+    fn on_policy_allows_one_step_per_batch_of_unrolls() {
+        let layout = SnippetLayout { length: 1, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true, on_policy: true };
+        let s = Schedule::new(SnippetReplay::new(layout, usize::MAX, 0), Pace::OnPolicy { batch_size: 4 }, Counters::default());
+        fill(&s, 3);
+        assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "3 of 4 unrolls");
+        fill(&s, 6);
+        assert_eq!(s.allowed(&s.counters(), s.fill()), 2, "9 unrolls make two batches");
+        assert_eq!(s.replay.lock().unwrap().sample(4).batch_size(), 4);
+        s.learner_stepped();
+        assert_eq!(s.allowed(&s.counters(), s.fill()), 2, "consuming a batch does not change the budget");
     }
 
     #[tokio::test]

@@ -16,7 +16,7 @@ use tch::{Device, Tensor};
 use tokio::sync::watch;
 
 use crate::actor::{ActionMap, ActorContext, run_actor};
-use crate::algo::mompo::MoMpoLearner;
+use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
 use crate::device::{configure_threads, learner_device};
@@ -29,7 +29,7 @@ use crate::nets::{ActionKind, ActorPolicy};
 use crate::plot::{Figure, PlotError, Series, SeriesKind};
 use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::run_config::TrainConfig;
-use crate::schedule::{Counters, Schedule};
+use crate::schedule::{Counters, Pace, Schedule};
 use crate::spec::EnvSpec;
 
 /// Errors of a training run.
@@ -46,7 +46,7 @@ pub enum TrainError {
     Learner(#[from] LearnerLoopError),
     /// Building the learner failed.
     #[error(transparent)]
-    Build(#[from] crate::algo::mompo::LearnerError),
+    Build(#[from] crate::algo::LearnerError),
     /// Restoring a checkpoint failed.
     #[error(transparent)]
     Checkpoint(#[from] crate::checkpoint::CheckpointError),
@@ -121,7 +121,7 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     let (run_dir, learner, counters) = match &options.resume {
         Some(dir) => {
             let (ckpt, progress) = latest_checkpoint(dir)?;
-            let learner = MoMpoLearner::load_checkpoint(&ckpt, device)?;
+            let learner = Learner::load_checkpoint(&ckpt, device)?;
             tracing::info!(checkpoint = %ckpt.display(), env_steps = progress.env_steps, "resuming");
             let counters = Counters {
                 env_steps: progress.env_steps,
@@ -139,12 +139,14 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
                 source: std::io::Error::other(e),
             })?;
             std::fs::write(dir.join("config.toml"), text).map_err(io(&dir))?;
-            (dir, MoMpoLearner::new(cfg.learner.clone(), dims.clone(), device)?, Counters::default())
+            (dir, Learner::new(cfg.learner.clone(), dims.clone(), device)?, Counters::default())
         }
     };
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
+    let settings = cfg.learner.shared();
+    let on_policy = cfg.learner.algorithm.on_policy();
     let layout = SnippetLayout {
-        length: cfg.learner.mpo.retrace_length,
+        length: settings.sequence_length,
         obs_dim: dims.obs_dim as usize,
         action_width: match dims.action {
             ActionKind::Continuous { dim } => dim as usize,
@@ -152,14 +154,20 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
         },
         num_rewards: objectives.len(),
         discrete: matches!(dims.action, ActionKind::Discrete { .. }),
+        on_policy,
     };
-    let replay = SnippetReplay::new(layout, cfg.learner.mpo.replay_capacity, cfg.seed);
-    let schedule = Arc::new(Schedule::new(
-        replay,
-        cfg.run.learner_steps_per_env_step,
-        cfg.run.min_replay_transitions.max(cfg.learner.mpo.retrace_length),
-        counters,
-    ));
+    let (capacity, pace) = if on_policy {
+        // The queue never holds much more than one batch: actors wait for the learner.
+        (usize::MAX, Pace::OnPolicy { batch_size: settings.batch_size })
+    } else {
+        let pace = Pace::Ratio {
+            learner_steps_per_env_step: cfg.run.learner_steps_per_env_step,
+            min_replay_transitions: cfg.run.min_replay_transitions.max(settings.sequence_length),
+        };
+        (cfg.learner.mpo.replay_capacity, pace)
+    };
+    let replay = SnippetReplay::new(layout, capacity, cfg.seed);
+    let schedule = Arc::new(Schedule::new(replay, pace, counters));
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
     let latest = Arc::new(Mutex::new(None));
 
@@ -182,7 +190,7 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
 
     let mut actors = Vec::new();
     for a in 0..cfg.env.num_actors {
-        let mut policy = ActorPolicy::new(&cfg.learner.network, dims.obs_dim, dims.action, Device::Cpu);
+        let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
         policy.load(&params_rx.borrow()).map_err(|e| TrainError::Stopped(e.to_string()))?;
         let ctx = ActorContext {
             id: a,
@@ -243,7 +251,7 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     }
     let learner = learner?;
 
-    let mut policy = ActorPolicy::new(&cfg.learner.network, dims.obs_dim, dims.action, Device::Cpu);
+    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
     policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
     let eval = evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?;
@@ -314,7 +322,7 @@ fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> Progre
     bar
 }
 
-fn progress_message(c: &Counters, names: &[String], stats: Option<&crate::algo::mompo::LearnerStats>) -> String {
+fn progress_message(c: &Counters, names: &[String], stats: Option<&crate::algo::LearnerStats>) -> String {
     let fmt = |v: &[f64]| v.iter().map(|x| format!("{x:.2}")).collect::<Vec<_>>().join(", ");
     let mut msg = format!("learner {} | ep {} | return [{}]=[{}]", c.learner_steps, c.episodes, names.join(", "), fmt(&c.recent_mean_return()));
     if let Some(s) = stats {
@@ -408,9 +416,9 @@ pub async fn evaluate_checkpoint(path: &Path, addresses: &[String], episodes: us
         (run_dir, path.to_path_buf())
     };
     let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
-    let learner = MoMpoLearner::load_checkpoint(&ckpt, Device::Cpu)?;
+    let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
     let dims = learner.dims().clone();
-    let mut policy = ActorPolicy::new(&cfg.learner.network, dims.obs_dim, dims.action, Device::Cpu);
+    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
     policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
     let clients = connect_all(addresses).await?;
     let spec = probe_spec(&clients[0], &cfg).await?;

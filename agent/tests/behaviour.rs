@@ -4,7 +4,7 @@
 //!
 //! Tests that seed libtorch's global RNG hold `RNG` so they do not interleave.
 
-use agent::algo::{LearnerDims, MoMpoLearner};
+use agent::algo::{LearnerDims, Learner};
 use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
 use agent::nets::ActionKind;
 use std::sync::Mutex;
@@ -23,7 +23,7 @@ fn exclusive() -> std::sync::MutexGuard<'static, ()> {
 
 const STATES: i64 = 32;
 
-fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> MoMpoLearner {
+fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> Learner {
     let mut cfg = LearnerConfig {
         objectives: vec![
             ObjectiveConfig {
@@ -55,8 +55,9 @@ fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> MoMpoLearner {
         obs_dim: 1,
         action: ActionKind::Continuous { dim: 1 },
         reward_names: vec!["right".into(), "left".into()],
+        obs_leaves: Vec::new(),
     };
-    MoMpoLearner::new(cfg, dims, Device::Cpu).unwrap()
+    Learner::new(cfg, dims, Device::Cpu).unwrap()
 }
 
 fn q_values(actions: &Tensor) -> Tensor {
@@ -69,7 +70,7 @@ fn obs() -> Tensor {
 }
 
 /// Mean action of the policy averaged over the last `tail` of `steps` updates.
-fn fitted_mean(learner: &mut MoMpoLearner, steps: usize, tail: usize) -> f64 {
+fn fitted_mean(learner: &mut Learner, steps: usize, tail: usize) -> f64 {
     let mut sum = 0.0;
     for i in 0..steps {
         learner.improve_policy_with(&obs(), q_values);

@@ -1,9 +1,11 @@
-//! Golden-value tests: the Rust E-step, M-step, Retrace and Gaussian log-likelihood
-//! against values computed independently in PyTorch by `golden/make_golden.py`
+//! Golden-value tests: the Rust E-step, M-step, Retrace, Gaussian log-likelihood and
+//! MO-V-MPO's top-k weights, temperature loss, T-step targets and policy fit against
+//! values computed independently in PyTorch by `golden/make_golden.py`
 //! (float64; the JSON files are committed, so no Python is needed here).
 
 use agent::algo::dual::positive;
-use agent::algo::estep::{exact_estep, sampled_estep};
+use agent::algo::estep::{advantage_estep, exact_estep, sampled_estep};
+use agent::algo::movmpo::{UnrollTargetInputs, unroll_targets};
 use agent::algo::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
 use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use agent::nets::GaussianParams;
@@ -242,4 +244,70 @@ fn retrace_targets_with_terminal_and_truncated_traces() {
         gamma: scalar(&g["gamma"]),
     });
     assert_close(&targets, &tensor(&g["targets"]), "Q_ret");
+}
+
+#[test]
+fn vmpo_top_k_weights_temperature_loss_and_kl() {
+    let g = golden("vmpo_estep");
+    let param = vector(&g["temperature_param"]).set_requires_grad(true);
+    let out = advantage_estep(
+        &tensor(&g["advantages"]),
+        &vector(&g["eligible"]),
+        &positive(&param),
+        &vector(&g["epsilon"]),
+        scalar(&g["fraction"]),
+    );
+    assert_close(&out.selected, &tensor(&g["selected"]), "top-k selection (ties in, ineligible out)");
+    assert_close(&out.weights, &tensor(&g["weights"]), "weights");
+    assert_close(&out.kl, &vector(&g["kl"]), "KL(q_k || p_old)");
+    assert_close_scalar(out.temperature_loss.double_value(&[]), scalar(&g["temperature_loss"]), "eq. 24 loss");
+    out.temperature_loss.backward();
+    assert_close(&param.grad(), &vector(&g["grad_temperature_param"]), "d loss / d eta param");
+}
+
+#[test]
+fn vmpo_unroll_targets_bootstrap_and_cut_like_the_reference() {
+    let g = golden("vmpo_targets");
+    let targets = unroll_targets(&UnrollTargetInputs {
+        rewards: &tensor(&g["rewards"]),
+        discounts: &tensor(&g["discounts"]),
+        valid: &tensor(&g["valid"]),
+        values: &tensor(&g["values"]),
+        gamma: scalar(&g["gamma"]),
+    });
+    // Padding steps have no target of their own; compare real steps only.
+    let mask = tensor(&g["valid_mask"]).unsqueeze(-1);
+    assert_close(&(targets * &mask), &(tensor(&g["targets"]) * &mask), "T-step targets");
+}
+
+#[test]
+fn vmpo_policy_fit_and_multiplier_losses() {
+    let g = golden("vmpo_mstep");
+    let online = GaussianParams {
+        mean: tensor(&g["online_mean"]).set_requires_grad(true),
+        std: tensor(&g["online_std"]).set_requires_grad(true),
+    };
+    let target = GaussianParams { mean: tensor(&g["target_mean"]), std: tensor(&g["target_std"]) };
+    let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
+    let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
+    let region = TrustRegion {
+        alpha_mean: &alpha_mean,
+        alpha_cov: &alpha_cov,
+        beta_mean: scalar(&g["beta_mean"]),
+        beta_cov: scalar(&g["beta_cov"]),
+    };
+    // One action per state ([1, N, D]); batch weights scaled by N because the M-step
+    // averages over states (how movmpo.rs calls it).
+    let w = vector(&g["weights"]);
+    let n = w.size()[0] as f64;
+    let out = gaussian_mstep(&online, &target, &tensor(&g["actions"]).unsqueeze(0), &(w * n).unsqueeze(0), &region);
+    assert_close_scalar(out.kl_mean.double_value(&[]), scalar(&g["kl_mean"]), "KL_mu");
+    assert_close_scalar(out.kl_cov.double_value(&[]), scalar(&g["kl_cov"]), "KL_Sigma");
+    assert_close_scalar(out.policy_loss.double_value(&[]), scalar(&g["policy_loss"]), "eq. 25 loss");
+    assert_close_scalar(out.alpha_loss.double_value(&[]), scalar(&g["alpha_loss"]), "multiplier loss");
+    (out.policy_loss + out.alpha_loss).backward();
+    assert_close_scalar(alpha_mean.grad().double_value(&[]), scalar(&g["grad_alpha_mean"]), "d/d alpha_mu");
+    assert_close_scalar(alpha_cov.grad().double_value(&[]), scalar(&g["grad_alpha_cov"]), "d/d alpha_Sigma");
+    assert_close(&online.mean.grad(), &tensor(&g["grad_online_mean"]), "d/d mu");
+    assert_close(&online.std.grad(), &tensor(&g["grad_online_std"]), "d/d sigma");
 }

@@ -92,3 +92,16 @@ def test_scalarized_option() -> None:
         s, v = task.step(a), vec.step(a)
         assert s.reward.shape == (1,)
         assert s.reward[0] == pytest.approx(scalarized(v.reward, 0.3), rel=1e-5)
+
+
+def test_dict_observation_carries_the_flat_values_by_name(env: HumanoidMocap) -> None:
+    named = HumanoidMocap(dict_observation=True)
+    try:
+        flat, _ = env.reset(seed=3)
+        obs, _ = named.reset(seed=3)
+        assert named.observation_space.contains(obs)
+        assert list(obs) == [k for k, s in env.obs_slices.items() if s.stop > s.start]
+        assert any("reference" in k for k in obs) and any("reference" not in k for k in obs)
+        np.testing.assert_array_equal(np.concatenate(list(obs.values())), flat)
+    finally:
+        named.close()

@@ -23,7 +23,7 @@ fn files(dir: &str) -> Vec<PathBuf> {
 #[tokio::test]
 async fn every_run_config_binds_to_its_envs_objectives() {
     let h = Harness::start(&[]).await;
-    let configs: Vec<PathBuf> = ["mompo", "mpo", "smoke"].iter().flat_map(|d| files(d)).collect();
+    let configs: Vec<PathBuf> = ["mompo", "mpo", "movmpo", "vmpo", "smoke"].iter().flat_map(|d| files(d)).collect();
     assert!(configs.len() >= 10, "{configs:?}");
     for path in configs {
         let cfg = TrainConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));

@@ -19,6 +19,8 @@ pub struct SnippetBatch {
     pub discounts: Tensor,
     /// `[T, B]` f32: log b(a_t|s_t) of the acting policy.
     pub behaviour_log_probs: Tensor,
+    /// `[T, B]` f32: 1 for real transitions, 0 for padding after an episode's end.
+    pub valid: Tensor,
 }
 
 /// A batch whose shapes or dtypes do not match the learner.
@@ -87,7 +89,8 @@ impl SnippetBatch {
             &self.behaviour_log_probs,
             &[t, b],
             Kind::Float,
-        )
+        )?;
+        expect("valid", &self.valid, &[t, b], Kind::Float)
     }
 
     /// The same batch on `device`.
@@ -98,6 +101,7 @@ impl SnippetBatch {
             rewards: self.rewards.to_device(device),
             discounts: self.discounts.to_device(device),
             behaviour_log_probs: self.behaviour_log_probs.to_device(device),
+            valid: self.valid.to_device(device),
         }
     }
 }

@@ -1,6 +1,8 @@
 //! MO-MPO and scalarized MPO (Abdolmaleki et al. 2020, appendix C, Algorithm 3):
-//! policy evaluation with Retrace, per-objective E-steps, one decoupled M-step.
-//! Pure library code: no tokio, tonic or proto types.
+//! policy evaluation with Retrace, per-objective E-steps, one decoupled M-step; and
+//! MO-V-MPO and scalarized V-MPO (appendix D): T-step value targets, per-objective
+//! top-k advantage weights, the same decoupled policy fit. One `Learner` (`state.rs`)
+//! runs all four. Pure library code: no tokio, tonic or proto types.
 //!
 //! Shape legend: B batch, M sampled actions, D action dims, K objectives,
 //! C learned critics, T snippet length.
@@ -10,11 +12,13 @@ pub mod batch;
 pub mod dual;
 pub mod estep;
 pub mod mompo;
+pub mod movmpo;
 pub mod mstep;
 pub mod objectives;
 pub mod retrace;
+pub mod state;
 pub mod stats;
 
 pub use batch::{BatchError, SnippetBatch};
-pub use mompo::{LearnerError, LearnerStats, MoMpoLearner, PhaseTimings};
+pub use state::{Learner, LearnerError, LearnerStats, PhaseTimings};
 pub use objectives::{BoundObjectives, LearnerDims, QSource, bind};

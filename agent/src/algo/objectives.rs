@@ -1,6 +1,6 @@
-//! Binding config objectives to the env's reward columns by name (MO-MPO: one
-//! epsilon_k per objective; scalarized MPO: one weight per reward column and one
-//! epsilon), and the learner's view of the env's dimensions.
+//! Binding config objectives to the env's reward columns by name (MO-MPO and MO-V-MPO:
+//! one epsilon_k per objective; the scalarized baselines: one weight per reward column
+//! and one epsilon), checked against the env's dimensions.
 //!
 //! After binding, the E-step sees K objectives in env order, each either a critic head
 //! or the closed-form action norm `-||a||_2` (appendix A, humanoid run). Critic head c
@@ -8,50 +8,12 @@
 //! the scalarization weights for scalarized MPO.
 
 use crate::config::{
-    Algorithm, ConfigError, LearnerConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
+    Architecture, ConfigError, LearnerConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
 };
+pub use crate::nets::LearnerDims;
 use crate::nets::ActionKind;
-use crate::spec::{EnvSpec, ObjectiveSpec, Space};
+use crate::spec::ObjectiveSpec;
 use serde::{Deserialize, Serialize};
-
-/// Sizes the networks need, taken from an `EnvSpec`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct LearnerDims {
-    /// Flattened observation size.
-    pub obs_dim: i64,
-    /// Continuous (D) or discrete (A) actions.
-    pub action: ActionKind,
-    /// Env objective names in reward-column order (K_env columns).
-    pub reward_names: Vec<String>,
-}
-
-impl LearnerDims {
-    /// Reads the dimensions from a spec; a Dict action space is rejected.
-    pub fn from_spec(spec: &EnvSpec) -> Result<Self, ConfigError> {
-        let action = match &spec.action_space {
-            Space::Box(b) => ActionKind::Continuous {
-                dim: b.numel() as i64,
-            },
-            Space::Discrete(d) => ActionKind::Discrete { n: d.n },
-            other => {
-                return Err(ConfigError::Invalid {
-                    field: "env action_space".into(),
-                    requirement: "a Box or Discrete space".into(),
-                    got: format!("{other:?}"),
-                });
-            }
-        };
-        Ok(Self {
-            obs_dim: spec.observation_space.flat_dim() as i64,
-            action,
-            reward_names: spec
-                .objective_names()
-                .into_iter()
-                .map(String::from)
-                .collect(),
-        })
-    }
-}
 
 /// Where the E-step gets objective k's Q-values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -200,22 +162,21 @@ pub fn bind_config(
     dims: &LearnerDims,
 ) -> Result<BoundObjectives, ConfigError> {
     cfg.validate()?;
-    let bound = match &cfg.algorithm {
-        Algorithm::MoMpo => bind_names(&cfg.objectives, &dims.reward_names)?,
-        Algorithm::ScalarizedMpo { epsilon, weights } => {
-            bind_scalarized(*epsilon, weights, &dims.reward_names)?
-        }
+    let bound = match cfg.algorithm.scalarization() {
+        None => bind_names(&cfg.objectives, &dims.reward_names)?,
+        Some((epsilon, weights)) => bind_scalarized(epsilon, weights, &dims.reward_names)?,
     };
-    if let ActionKind::Discrete { .. } = dims.action
-        && let Some(o) = bound
-            .objectives
-            .iter()
-            .find(|o| o.source == QSource::ActionNorm)
-    {
-        return Err(ConfigError::Unsupported {
-            name: o.name.clone(),
-            kind: ObjectiveSource::ActionNorm,
-        });
+    if let Some(o) = bound.objectives.iter().find(|o| o.source == QSource::ActionNorm) {
+        let reason = if cfg.algorithm.on_policy() {
+            Some("V-MPO cannot use (its step 1 needs one advantage per taken action; make it learned)")
+        } else if let ActionKind::Discrete { .. } = dims.action {
+            Some("needs continuous actions")
+        } else {
+            None
+        };
+        if let Some(reason) = reason {
+            return Err(ConfigError::Unsupported { name: o.name.clone(), kind: ObjectiveSource::ActionNorm, reason: reason.into() });
+        }
     }
     if bound.critic_names.is_empty() {
         return Err(ConfigError::Invalid {
@@ -223,6 +184,19 @@ pub fn bind_config(
             requirement: "at least one learned objective".into(),
             got: format!("{:?}", cfg.objectives),
         });
+    }
+    if let Architecture::Mocap { reference_match, .. } = &cfg.network.architecture {
+        let split = dims.split_observation(reference_match);
+        if split.matching.is_empty() || split.rest.is_empty() {
+            let leaves: Vec<&str> = dims.obs_leaves.iter().map(|l| l.name.as_str()).collect();
+            return Err(ConfigError::Invalid {
+                field: "network.architecture.reference_match".into(),
+                requirement: format!(
+                    "a substring of some but not all observation leaf names (a Dict observation space; humanoid-mocap needs kwargs dict_observation = true), matched {reference_match:?} against"
+                ),
+                got: format!("{leaves:?}"),
+            });
+        }
     }
     Ok(bound)
 }
@@ -267,6 +241,40 @@ mod tests {
         assert!(msg.contains(r#"missing ["action_norm"]"#), "{msg}");
         assert!(msg.contains(r#"extra ["pain"]"#), "{msg}");
         assert!(msg.contains(r#"duplicate ["task"]"#), "{msg}");
+    }
+
+    #[test]
+    fn vmpo_rejects_closed_form_objectives_and_mocap_needs_named_leaves() {
+        use crate::config::{Algorithm, Architecture};
+        use crate::nets::ObsLeaf;
+        let mut cfg = LearnerConfig {
+            algorithm: Algorithm::MoVmpo,
+            objectives: vec![
+                obj("task", 0.1, ObjectiveSource::Learned),
+                obj("action_norm", 0.1, ObjectiveSource::ActionNorm),
+            ],
+            ..LearnerConfig::default()
+        };
+        let mut dims = LearnerDims {
+            obs_dim: 4,
+            action: ActionKind::Continuous { dim: 2 },
+            reward_names: env(),
+            obs_leaves: vec![ObsLeaf { name: String::new(), dim: 4 }],
+        };
+        let msg = bind_config(&cfg, &dims).unwrap_err().to_string();
+        assert!(msg.contains(r#"objective "action_norm""#) && msg.contains("V-MPO"), "{msg}");
+        cfg.objectives[1].source = ObjectiveSource::Learned;
+        bind_config(&cfg, &dims).unwrap();
+        cfg.network.architecture =
+            Architecture::Mocap { encoder_layers: vec![8], latent_dim: 2, reference_match: "reference".into() };
+        let msg = bind_config(&cfg, &dims).unwrap_err().to_string();
+        assert!(msg.starts_with("network.architecture.reference_match must be"), "{msg}");
+        assert!(msg.ends_with(r#"got [""]"#), "{msg}");
+        dims.obs_leaves = vec![
+            ObsLeaf { name: "walker/joints".into(), dim: 1 },
+            ObsLeaf { name: "walker/reference_pos".into(), dim: 3 },
+        ];
+        bind_config(&cfg, &dims).unwrap();
     }
 
     #[test]

@@ -26,7 +26,8 @@ pub struct LearnerStats {
     pub temperature: Vec<f32>,
     /// Per objective: realised KL(q_k || pi_old).
     pub estep_kl: Vec<f32>,
-    /// Per objective: mean Q_k over the sampled actions.
+    /// Per objective: mean Q_k over the sampled actions (MO-MPO); per critic head:
+    /// mean V_c over the real steps (MO-V-MPO).
     pub q_mean: Vec<f32>,
     /// (alpha_mu, alpha_Sigma) or (alpha) after the update.
     pub alpha: Vec<f32>,

@@ -13,43 +13,18 @@
 //! C heads (learned objectives).
 
 use super::ActionKind;
-use super::mlp::{Dense, Norm};
+use super::mlp::{Dense, HeadStack, Norm};
 use crate::config::NetworkConfig;
 use tch::{Kind, Tensor, nn};
 
-/// One layer of all heads at once: weight `[C, in, out]`, bias `[C, 1, out]`.
-#[derive(Debug)]
-struct StackedDense {
-    weight: Tensor,
-    bias: Tensor,
-}
-
-impl StackedDense {
-    fn new(p: &nn::Path, heads: i64, input: i64, output: i64) -> Self {
-        let bound = 1.0 / (input as f64).sqrt();
-        let init = nn::Init::Uniform {
-            lo: -bound,
-            up: bound,
-        };
-        Self {
-            weight: p.var("weight", &[heads, input, output], init),
-            bias: p.var("bias", &[heads, 1, output], init),
-        }
-    }
-
-    /// `[C or 1, P, in] -> [C, P, out]`.
-    fn forward(&self, x: &Tensor) -> Tensor {
-        x.matmul(&self.weight) + &self.bias
-    }
-}
-
-/// C critic heads on a shared first layer.
+/// C critic heads on a shared first layer (and `critic_shared_layers - 1` more).
 #[derive(Debug)]
 pub struct MultiCritic {
     obs_layer: Dense,
     action_layer: Dense,
     norm: Norm,
-    heads: Vec<StackedDense>,
+    shared_hidden: Vec<Dense>,
+    heads: HeadStack,
     action: ActionKind,
     tanh_action: bool,
     num_heads: i64,
@@ -72,24 +47,18 @@ impl MultiCritic {
         let obs_layer = Dense::new(&(&shared / "obs"), obs_dim, layers[0], fan_in, true);
         let action_layer = Dense::new(&(&shared / "action"), act_dim, layers[0], fan_in, false);
         let norm = Norm::new(&(&shared / "layer_norm"), layers[0]);
-        let mut sizes = layers.clone();
-        sizes.push(1);
-        let heads = sizes
+        let n_shared = cfg.critic_shared_layers;
+        let shared_hidden = layers[..n_shared]
             .windows(2)
             .enumerate()
-            .map(|(i, w)| {
-                StackedDense::new(
-                    &(p / "heads" / format!("linear_{i}")),
-                    num_heads,
-                    w[0],
-                    w[1],
-                )
-            })
+            .map(|(i, w)| Dense::new(&(&shared / format!("linear_{}", i + 1)), w[0], w[1], w[0], true))
             .collect();
+        let heads = HeadStack::new(&(p / "heads"), num_heads, &layers[n_shared - 1..]);
         Self {
             obs_layer,
             action_layer,
             norm,
+            shared_hidden,
             heads,
             action,
             tanh_action: cfg.tanh_on_critic_action,
@@ -110,18 +79,14 @@ impl MultiCritic {
         }
     }
 
-    /// Heads on first-layer features. `[P, h1] -> [P, C]`.
+    /// Further shared layers, then the heads, on first-layer features. `[P, h1] -> [P, C]`.
     fn heads_forward(&self, h: &Tensor) -> Tensor {
-        let mut x = h.unsqueeze(0);
-        let last = self.heads.len() - 1;
-        for (i, layer) in self.heads.iter().enumerate() {
+        let mut x = h.shallow_clone();
+        for layer in &self.shared_hidden {
             x = layer.forward(&x);
-            if i < last {
-                // In place: ELU's backward uses its result, Linear's does not need it.
-                let _ = x.elu_();
-            }
+            let _ = x.elu_();
         }
-        x.squeeze_dim(-1).transpose(0, 1)
+        self.heads.forward(&x)
     }
 
     /// Shared first layer for actions `[.., N, a]` against states `[N, obs]`.
@@ -136,7 +101,10 @@ impl MultiCritic {
             let _ = h.g_add_(&per_state);
         } else {
             // The one-hot table of all actions is `[A, 1, h1]`: broadcast out of place.
-            h = h + per_state;
+            #[allow(clippy::assign_op_pattern, reason = "`+=` is in place and cannot broadcast")]
+            {
+                h = h + per_state;
+            }
         }
         self.norm.forward_tanh(&h)
     }

@@ -106,6 +106,63 @@ impl LayerNormMlp {
     }
 }
 
+/// One layer of C independent heads at once: weight `[C, in, out]`, bias `[C, 1, out]`.
+#[derive(Debug)]
+struct StackedDense {
+    weight: Tensor,
+    bias: Tensor,
+}
+
+impl StackedDense {
+    fn new(p: &nn::Path, heads: i64, input: i64, output: i64) -> Self {
+        let bound = 1.0 / (input as f64).sqrt();
+        let init = nn::Init::Uniform { lo: -bound, up: bound };
+        Self { weight: p.var("weight", &[heads, input, output], init), bias: p.var("bias", &[heads, 1, output], init) }
+    }
+
+    /// `[C or 1, P, in] -> [C, P, out]`.
+    fn forward(&self, x: &Tensor) -> Tensor {
+        x.matmul(&self.weight) + &self.bias
+    }
+}
+
+/// C per-objective heads, each Linear -> ELU per hidden size and a final Linear to one
+/// value, run as one batched matmul per layer (so all objectives cost one pass).
+#[derive(Debug)]
+pub struct HeadStack {
+    layers: Vec<StackedDense>,
+}
+
+impl HeadStack {
+    /// `sizes[0]` is the input width, the rest the hidden sizes; parameters under
+    /// `p/linear_i`.
+    pub fn new(p: &nn::Path, heads: i64, sizes: &[i64]) -> Self {
+        let mut sizes = sizes.to_vec();
+        sizes.push(1);
+        let layers = sizes
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| StackedDense::new(&(p / format!("linear_{i}")), heads, w[0], w[1]))
+            .collect();
+        Self { layers }
+    }
+
+    /// # Shapes
+    /// `[P, in] -> [P, C]`.
+    pub fn forward(&self, h: &Tensor) -> Tensor {
+        let mut x = h.unsqueeze(0);
+        let last = self.layers.len() - 1;
+        for (i, layer) in self.layers.iter().enumerate() {
+            x = layer.forward(&x);
+            if i < last {
+                // In place: ELU's backward uses its result, Linear's does not need it.
+                let _ = x.elu_();
+            }
+        }
+        x.squeeze_dim(-1).transpose(0, 1)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,15 +5,20 @@
 //! D action dims, A discrete actions, C learned critics (heads).
 
 pub mod critic;
+pub mod dims;
 pub mod mlp;
 pub mod policy;
 pub mod snapshot;
+pub mod torso;
+pub mod value;
 
 pub use critic::MultiCritic;
+pub use dims::{LearnerDims, ObsLeaf, ObsSplit};
 pub use policy::{
     ActOutput, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
 };
 pub use snapshot::{ActorPolicy, NamedArray, PolicySnapshot};
+pub use value::ValueNet;
 
 /// The action space as the networks see it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -8,8 +8,9 @@
 //!
 //! Shape legend: B states, M samples per state, D action dims, A discrete actions.
 
-use super::ActionKind;
-use super::mlp::{Dense, LayerNormMlp};
+use super::mlp::Dense;
+use super::torso::Torso;
+use super::{ActionKind, LearnerDims};
 use crate::config::NetworkConfig;
 use tch::{Kind, Tensor, nn};
 
@@ -53,7 +54,7 @@ impl GaussianParams {
 /// Diagonal Gaussian policy network.
 #[derive(Debug)]
 pub struct GaussianPolicy {
-    torso: LayerNormMlp,
+    torso: Torso,
     head: Dense,
     action_dim: i64,
     tanh_mean: bool,
@@ -61,9 +62,10 @@ pub struct GaussianPolicy {
 }
 
 impl GaussianPolicy {
-    /// Parameters under `p` (`torso/..`, `head/..`).
-    pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, action_dim: i64) -> Self {
-        let torso = LayerNormMlp::new(&(p / "torso"), obs_dim, &cfg.policy_layers);
+    /// Parameters under `p` (`torso/..`, `head/..`, and the mocap torso's `encoder/..`,
+    /// `latent/..`).
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims, action_dim: i64) -> Self {
+        let torso = Torso::new(p, cfg, dims);
         let last = torso.output_dim();
         let head = Dense::new(&(p / "head"), last, 2 * action_dim, last, true);
         Self {
@@ -76,9 +78,10 @@ impl GaussianPolicy {
     }
 
     /// # Shapes
-    /// `obs [B, obs_dim] -> mean, std [B, D]`.
-    pub fn forward(&self, obs: &Tensor) -> GaussianParams {
-        let out = self.head.forward(&self.torso.forward(obs));
+    /// `obs [B, obs_dim]`, latent `noise [B, L]` (mocap torso; `None` draws it)
+    /// `-> mean, std [B, D]`.
+    pub fn forward(&self, obs: &Tensor, noise: Option<&Tensor>) -> GaussianParams {
+        let out = self.head.forward(&self.torso.forward(obs, noise));
         let parts = out.split(self.action_dim, -1);
         let mean = if self.tanh_mean {
             parts[0].tanh()
@@ -93,22 +96,22 @@ impl GaussianPolicy {
 /// Categorical policy network over `A` actions (A.2).
 #[derive(Debug)]
 pub struct CategoricalPolicy {
-    torso: LayerNormMlp,
+    torso: Torso,
     head: Dense,
 }
 
 impl CategoricalPolicy {
     /// Parameters under `p` (`torso/..`, `head/..`).
-    pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, num_actions: i64) -> Self {
-        let torso = LayerNormMlp::new(&(p / "torso"), obs_dim, &cfg.policy_layers);
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims, num_actions: i64) -> Self {
+        let torso = Torso::new(p, cfg, dims);
         let last = torso.output_dim();
         let head = Dense::new(&(p / "head"), last, num_actions, last, true);
         Self { torso, head }
     }
 
     /// Unnormalised log-probabilities. # Shapes `obs [B, obs_dim] -> [B, A]`.
-    pub fn forward(&self, obs: &Tensor) -> Tensor {
-        self.head.forward(&self.torso.forward(obs))
+    pub fn forward(&self, obs: &Tensor, noise: Option<&Tensor>) -> Tensor {
+        self.head.forward(&self.torso.forward(obs, noise))
     }
 }
 
@@ -156,24 +159,33 @@ pub enum Policy {
 }
 
 impl Policy {
-    /// Builds the policy for `action` under `p`.
-    pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, action: ActionKind) -> Self {
-        match action {
-            ActionKind::Continuous { dim } => {
-                Policy::Gaussian(GaussianPolicy::new(p, cfg, obs_dim, dim))
-            }
-            ActionKind::Discrete { n } => {
-                Policy::Categorical(CategoricalPolicy::new(p, cfg, obs_dim, n))
-            }
+    /// Builds the policy for `dims.action` under `p`.
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims) -> Self {
+        match dims.action {
+            ActionKind::Continuous { dim } => Policy::Gaussian(GaussianPolicy::new(p, cfg, dims, dim)),
+            ActionKind::Discrete { n } => Policy::Categorical(CategoricalPolicy::new(p, cfg, dims, n)),
         }
     }
 
     /// # Shapes
-    /// `obs [B, obs_dim]`.
+    /// `obs [B, obs_dim]`; a latent torso draws fresh noise.
     pub fn forward(&self, obs: &Tensor) -> PolicyOutput {
+        self.forward_with_noise(obs, None)
+    }
+
+    /// As `forward`, with the latent noise `[B, L]` of a latent torso given.
+    pub fn forward_with_noise(&self, obs: &Tensor, noise: Option<&Tensor>) -> PolicyOutput {
         match self {
-            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward(obs)),
-            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward(obs)),
+            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward(obs, noise)),
+            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward(obs, noise)),
+        }
+    }
+
+    /// Latent noise for `rows` states, `None` when the torso has no latent.
+    pub fn latent_noise(&self, rows: i64) -> Option<Tensor> {
+        match self {
+            Policy::Gaussian(g) => g.torso.noise(rows),
+            Policy::Categorical(c) => c.torso.noise(rows),
         }
     }
 
@@ -181,7 +193,9 @@ impl Policy {
     /// Runs without gradient tracking.
     pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
         tch::no_grad(|| {
-            let out = self.forward(obs);
+            // The deterministic policy uses the latent's mean (zero noise).
+            let noise = self.latent_noise(obs.size()[0]).map(|n| if deterministic { n.zeros_like() } else { n });
+            let out = self.forward_with_noise(obs, noise.as_ref());
             let actions = match &out {
                 PolicyOutput::Gaussian(g) if deterministic => g.mean.shallow_clone(),
                 PolicyOutput::Gaussian(g) => g.sample(1).squeeze_dim(0),
@@ -202,6 +216,10 @@ mod tests {
     use super::*;
     use tch::Device;
 
+    fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
+        LearnerDims { obs_dim, action, reward_names: vec!["r".into()], obs_leaves: Vec::new() }
+    }
+
     #[test]
     fn std_respects_min_variance_and_tanh_mean() {
         let vs = nn::VarStore::new(Device::Cpu);
@@ -209,9 +227,9 @@ mod tests {
             min_variance: 1e-4,
             ..NetworkConfig::default()
         };
-        let policy = GaussianPolicy::new(&vs.root(), &cfg, 3, 2);
+        let policy = GaussianPolicy::new(&vs.root(), &cfg, &dims(3, ActionKind::Continuous { dim: 2 }), 2);
         let obs = Tensor::randn([64, 3], (Kind::Float, Device::Cpu)) * 1e3;
-        let out = policy.forward(&obs);
+        let out = policy.forward(&obs, None);
         assert!(out.std.min().double_value(&[]) >= 1e-2);
         assert!(out.mean.abs().max().double_value(&[]) <= 1.0);
         assert_eq!(out.sample(5).size(), vec![5, 64, 2]);
@@ -220,12 +238,7 @@ mod tests {
     #[test]
     fn categorical_act_returns_indices_and_log_probs() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let policy = Policy::new(
-            &vs.root(),
-            &NetworkConfig::default(),
-            3,
-            ActionKind::Discrete { n: 4 },
-        );
+        let policy = Policy::new(&vs.root(), &NetworkConfig::default(), &dims(3, ActionKind::Discrete { n: 4 }));
         let act = policy.act(&Tensor::zeros([6, 3], (Kind::Float, Device::Cpu)), false);
         assert_eq!(act.actions.size(), vec![6]);
         assert_eq!(act.actions.kind(), Kind::Int64);

@@ -1,7 +1,7 @@
 //! Publishing the learner's policy to actors: a plain, engine-free copy of the policy
 //! parameters (`PolicySnapshot`) and a CPU-side `ActorPolicy` that loads it.
 
-use super::ActionKind;
+use super::LearnerDims;
 use super::policy::{ActOutput, Policy};
 use crate::config::NetworkConfig;
 use tch::{Device, Kind, Tensor, nn};
@@ -124,9 +124,9 @@ pub struct ActorPolicy {
 
 impl ActorPolicy {
     /// A policy with the learner's layout (`policy/..` names) on `device`.
-    pub fn new(cfg: &NetworkConfig, obs_dim: i64, action: ActionKind, device: Device) -> Self {
+    pub fn new(cfg: &NetworkConfig, dims: &LearnerDims, device: Device) -> Self {
         let vs = nn::VarStore::new(device);
-        let policy = Policy::new(&(vs.root() / "policy"), cfg, obs_dim, action);
+        let policy = Policy::new(&(vs.root() / "policy"), cfg, dims);
         Self { vs, policy }
     }
 

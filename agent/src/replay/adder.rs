@@ -2,10 +2,12 @@
 //!
 //! Within an episode a snippet is emitted every T transitions. When an episode
 //! ends with transitions not yet emitted, its last T transitions are emitted
-//! (overlapping the previous snippet); an episode shorter than T is padded with
-//! absorbing steps: reward 0, discount 0 and a behaviour log-probability of
-//! [`PAD_LOG_PROB`], which makes the Retrace trace coefficient
-//! c = min(1, π/b) ≈ 0, so padding never leaks into the targets of real steps.
+//! (overlapping the previous snippet) for off-policy replay; on-policy unrolls
+//! (`SnippetLayout::on_policy`) never overlap, so each transition is used once, and
+//! carry only the transitions not yet emitted. Missing steps are padding: absorbing
+//! steps with reward 0, discount 0, `valid` 0 and a behaviour log-probability of
+//! [`PAD_LOG_PROB`], which makes the Retrace trace coefficient c = min(1, π/b) ≈ 0,
+//! so padding never leaks into the targets of real steps.
 
 use std::collections::VecDeque;
 
@@ -80,8 +82,9 @@ impl SnippetAdder {
         self.since_emit += 1;
         let ended = step.terminated || step.truncated;
         let snippet = if self.since_emit == self.layout.length || (ended && self.since_emit > 0) {
+            let fresh = if self.layout.on_policy { self.since_emit } else { self.window.len() };
             self.since_emit = 0;
-            Some(self.emit(step.next_observation))
+            Some(self.emit(step.next_observation, fresh))
         } else {
             None
         };
@@ -93,7 +96,8 @@ impl SnippetAdder {
         snippet
     }
 
-    fn emit(&self, last_observation: &[f32]) -> Snippet {
+    /// The newest `count` transitions of the window, padded to T.
+    fn emit(&self, last_observation: &[f32], count: usize) -> Snippet {
         let l = self.layout;
         let mut s = Snippet {
             observations: Vec::with_capacity((l.length + 1) * l.obs_dim),
@@ -101,20 +105,23 @@ impl SnippetAdder {
             rewards: Vec::with_capacity(l.length * l.num_rewards),
             discounts: Vec::with_capacity(l.length),
             behaviour_log_probs: Vec::with_capacity(l.length),
+            valid: Vec::with_capacity(l.length),
         };
-        for t in &self.window {
+        for t in self.window.iter().skip(self.window.len() - count) {
             s.observations.extend_from_slice(&t.observation);
             s.actions.extend_from_slice(&t.action);
             s.rewards.extend_from_slice(&t.reward);
             s.discounts.push(t.discount);
             s.behaviour_log_probs.push(t.log_prob);
+            s.valid.push(1.0);
         }
-        for _ in self.window.len()..l.length {
+        for _ in count..l.length {
             s.observations.extend_from_slice(last_observation);
             s.actions.extend(std::iter::repeat_n(0.0, l.action_width));
             s.rewards.extend(std::iter::repeat_n(0.0, l.num_rewards));
             s.discounts.push(0.0);
             s.behaviour_log_probs.push(PAD_LOG_PROB);
+            s.valid.push(0.0);
         }
         s.observations.extend_from_slice(last_observation);
         s
@@ -126,7 +133,7 @@ mod tests {
     use super::*;
 
     fn layout(length: usize) -> SnippetLayout {
-        SnippetLayout { length, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true }
+        SnippetLayout { length, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true, on_policy: false }
     }
 
     /// Steps t = 0.. of an episode: obs t, action t, reward 10 t, next obs t + 1.
@@ -180,6 +187,20 @@ mod tests {
         assert_eq!(s.rewards, [0.0, 10.0, 0.0, 0.0]);
         assert_eq!(s.discounts, [1.0, 0.0, 0.0, 0.0]);
         assert_eq!(s.behaviour_log_probs, [-1.0, -1.0, PAD_LOG_PROB, PAD_LOG_PROB]);
+        assert_eq!(s.valid, [1.0, 1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn on_policy_unrolls_are_disjoint_and_pad_the_tail() {
+        let mut adder = SnippetAdder::new(SnippetLayout { on_policy: true, ..layout(3) });
+        let snippets = run(&mut adder, 7, Some(false));
+        // Steps 0-2, 3-5, then step 6 alone, padded; truncation keeps its discount 1.
+        assert_eq!(snippets.len(), 3);
+        assert_eq!(snippets[2].actions, [6.0, 0.0, 0.0]);
+        assert_eq!(snippets[2].observations, [6.0, 7.0, 7.0, 7.0]);
+        assert_eq!(snippets[2].discounts, [1.0, 0.0, 0.0]);
+        assert_eq!(snippets[2].valid, [1.0, 0.0, 0.0]);
+        assert_eq!(snippets[1].valid, [1.0, 1.0, 1.0]);
     }
 
     #[test]

@@ -1,9 +1,12 @@
-//! Replay of trajectory snippets for MO-MPO (appendix C.1, Algorithm 2).
+//! Replay of trajectory snippets for MO-MPO (appendix C.1, Algorithm 2), and the queue
+//! of on-policy unrolls for MO-V-MPO (appendix D, Table 5).
 //!
 //! Actors cut each instance's stream of transitions into snippets of T steps
-//! ([`adder::SnippetAdder`]); the learner samples B of them uniformly
-//! ([`SnippetReplay::sample`]) as a [`SnippetBatch`] `[T(+1), B, ...]`.
-//! Capacity is counted in transitions (Table 2: 1e6) and stored as T-step snippets.
+//! ([`adder::SnippetAdder`]). Off-policy, the learner samples B of them uniformly
+//! ([`SnippetReplay::sample`]) as a [`SnippetBatch`] `[T(+1), B, ...]`; capacity is
+//! counted in transitions (Table 2: 1e6) and stored as T-step snippets. On-policy
+//! (`SnippetLayout::on_policy`), `sample` takes the B oldest unrolls out of the queue,
+//! so each is used exactly once.
 
 pub mod adder;
 
@@ -26,6 +29,8 @@ pub struct SnippetLayout {
     pub num_rewards: usize,
     /// Discrete actions are stored as their index and batched as i64.
     pub discrete: bool,
+    /// On-policy unrolls: disjoint (never overlapping) and consumed once, oldest first.
+    pub on_policy: bool,
 }
 
 /// T transitions of one env instance; flat, time-major.
@@ -41,6 +46,8 @@ pub struct Snippet {
     pub discounts: Vec<f32>,
     /// `[T]`: log b(a_t|s_t).
     pub behaviour_log_probs: Vec<f32>,
+    /// `[T]`: 1 for real transitions, 0 for padding after the episode's end.
+    pub valid: Vec<f32>,
 }
 
 /// A snippet whose sizes do not match the replay's layout.
@@ -104,6 +111,7 @@ impl SnippetReplay {
         check("rewards", l.length * l.num_rewards, snippet.rewards.len())?;
         check("discounts", l.length, snippet.discounts.len())?;
         check("behaviour_log_probs", l.length, snippet.behaviour_log_probs.len())?;
+        check("valid", l.length, snippet.valid.len())?;
         if self.snippets.len() < self.capacity {
             self.snippets.push(snippet);
         } else {
@@ -114,12 +122,27 @@ impl SnippetReplay {
         Ok(())
     }
 
-    /// `batch_size` snippets drawn uniformly with replacement, as time-major tensors.
+    /// `batch_size` snippets as time-major tensors: drawn uniformly with replacement,
+    /// or, on-policy, the oldest ones, removed.
     ///
-    /// Panics when empty (callers wait for a minimum fill first).
+    /// Panics when empty, or on-policy with fewer than `batch_size` unrolls queued
+    /// (callers wait for them first).
     pub fn sample(&mut self, batch_size: usize) -> SnippetBatch {
         assert!(!self.snippets.is_empty(), "sampling an empty replay");
+        if self.layout.on_policy {
+            assert!(self.snippets.len() >= batch_size, "on-policy batch of {batch_size} from {}", self.snippets.len());
+            let picks: Vec<usize> = (0..batch_size).collect();
+            let batch = self.gather(&picks);
+            self.snippets.drain(..batch_size);
+            self.next = self.snippets.len() % self.capacity;
+            return batch;
+        }
         let picks: Vec<usize> = (0..batch_size).map(|_| self.rng.random_range(0..self.snippets.len())).collect();
+        self.gather(&picks)
+    }
+
+    fn gather(&self, picks: &[usize]) -> SnippetBatch {
+        let batch_size = picks.len();
         let l = self.layout;
         let (t, b) = (l.length, batch_size);
         // Gather field `f` of every picked snippet into time-major [steps, B, width].
@@ -150,6 +173,7 @@ impl SnippetReplay {
             rewards: Tensor::from_slice(&gather(|s| &s.rewards, t, l.num_rewards)).view([t_, b_, l.num_rewards as i64]),
             discounts: Tensor::from_slice(&gather(|s| &s.discounts, t, 1)).view([t_, b_]),
             behaviour_log_probs: Tensor::from_slice(&gather(|s| &s.behaviour_log_probs, t, 1)).view([t_, b_]),
+            valid: Tensor::from_slice(&gather(|s| &s.valid, t, 1)).view([t_, b_]),
         }
     }
 }
@@ -159,7 +183,7 @@ mod tests {
     use super::*;
 
     fn layout() -> SnippetLayout {
-        SnippetLayout { length: 2, obs_dim: 1, action_width: 1, num_rewards: 2, discrete: true }
+        SnippetLayout { length: 2, obs_dim: 1, action_width: 1, num_rewards: 2, discrete: true, on_policy: false }
     }
 
     fn snippet(tag: f32) -> Snippet {
@@ -169,6 +193,7 @@ mod tests {
             rewards: vec![tag, -tag, tag, -tag],
             discounts: vec![1.0, 0.0],
             behaviour_log_probs: vec![-0.5, -0.25],
+            valid: vec![1.0, 1.0],
         }
     }
 
@@ -203,6 +228,24 @@ mod tests {
         let first: Vec<f64> = (0..64).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
         assert!(first.iter().all(|&t| t == 2.0 || t == 3.0), "snippet 1 was evicted: {first:?}");
         assert!(first.contains(&2.0) && first.contains(&3.0));
+    }
+
+    #[test]
+    fn on_policy_batches_take_the_oldest_unrolls_once() {
+        let layout = SnippetLayout { on_policy: true, ..layout() };
+        let mut queue = SnippetReplay::new(layout, usize::MAX, 0);
+        for tag in [1.0, 2.0, 3.0] {
+            queue.insert(snippet(tag)).unwrap();
+        }
+        let batch = queue.sample(2);
+        let tags: Vec<f64> = (0..2).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
+        assert_eq!(tags, [1.0, 2.0]);
+        assert_eq!(queue.len(), 1);
+        queue.insert(snippet(4.0)).unwrap();
+        let batch = queue.sample(2);
+        let tags: Vec<f64> = (0..2).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
+        assert_eq!(tags, [3.0, 4.0]);
+        assert!(queue.is_empty());
     }
 
     #[test]

@@ -217,10 +217,8 @@ impl SweepConfig {
         if settings.is_empty() {
             return Err(invalid("grid", "a non-empty product or points", "nothing"));
         }
-        let expected_kind = match base.learner.algorithm {
-            Algorithm::MoMpo => GridKind::Epsilon,
-            Algorithm::ScalarizedMpo { .. } => GridKind::Weight,
-        };
+        let expected_kind =
+            if base.learner.algorithm.scalarization().is_some() { GridKind::Weight } else { GridKind::Epsilon };
         if self.grid.kind != expected_kind {
             return Err(invalid("grid.kind", &format!("{expected_kind:?} for the base algorithm"), self.grid.kind));
         }
@@ -244,7 +242,7 @@ pub fn apply(base: &TrainConfig, setting: &BTreeMap<String, f64>, seed: u64) -> 
     cfg.seed = seed;
     cfg.learner.seed = seed;
     match &mut cfg.learner.algorithm {
-        Algorithm::MoMpo => {
+        Algorithm::MoMpo | Algorithm::MoVmpo => {
             for (name, &epsilon) in setting {
                 let o = cfg.learner.objectives.iter_mut().find(|o| &o.name == name).ok_or_else(|| {
                     invalid("grid", "names of the base config's objectives", name)
@@ -252,7 +250,7 @@ pub fn apply(base: &TrainConfig, setting: &BTreeMap<String, f64>, seed: u64) -> 
                 o.epsilon = epsilon;
             }
         }
-        Algorithm::ScalarizedMpo { weights, .. } => {
+        Algorithm::ScalarizedMpo { weights, .. } | Algorithm::ScalarizedVmpo { weights, .. } => {
             for (name, &weight) in setting {
                 match weights.iter_mut().find(|w| &w.name == name) {
                     Some(w) => w.weight = weight,

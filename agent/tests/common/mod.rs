@@ -1,11 +1,11 @@
 //! Small learners and random snippet batches shared by the integration tests.
 #![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
 
-use agent::algo::{LearnerDims, MoMpoLearner, SnippetBatch};
+use agent::algo::{LearnerDims, Learner, SnippetBatch};
 use agent::config::{
-    Algorithm, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
+    Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
 };
-use agent::nets::ActionKind;
+use agent::nets::{ActionKind, ObsLeaf};
 use tch::{Device, Kind, Tensor};
 
 pub const OBS: i64 = 3;
@@ -29,12 +29,12 @@ pub fn small_config() -> LearnerConfig {
 }
 
 /// Continuous MO-MPO: `task` learned, `action_norm` closed form.
-pub fn continuous_learner() -> MoMpoLearner {
+pub fn continuous_learner() -> Learner {
     continuous_learner_with(|_| {})
 }
 
 /// `continuous_learner` with config changes.
-pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> MoMpoLearner {
+pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> Learner {
     let mut cfg = small_config();
     change(&mut cfg);
     cfg.objectives = vec![
@@ -53,12 +53,13 @@ pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> MoMpo
         obs_dim: OBS,
         action: ActionKind::Continuous { dim: 2 },
         reward_names: vec!["task".into(), "action_norm".into()],
+        obs_leaves: Vec::new(),
     };
-    MoMpoLearner::new(cfg, dims, Device::Cpu).unwrap()
+    Learner::new(cfg, dims, Device::Cpu).unwrap()
 }
 
 /// Discrete scalarized MPO with one-step TD (A.2 settings).
-pub fn discrete_scalarized_learner(target_update_period: u64) -> MoMpoLearner {
+pub fn discrete_scalarized_learner(target_update_period: u64) -> Learner {
     let mut cfg = small_config();
     cfg.mpo.target_update_period = target_update_period;
     cfg.algorithm = Algorithm::ScalarizedMpo {
@@ -80,17 +81,16 @@ pub fn discrete_scalarized_learner(target_update_period: u64) -> MoMpoLearner {
         obs_dim: OBS,
         action: ActionKind::Discrete { n: 4 },
         reward_names: vec!["treasure".into(), "time".into()],
+        obs_leaves: Vec::new(),
     };
-    MoMpoLearner::new(cfg, dims, Device::Cpu).unwrap()
+    Learner::new(cfg, dims, Device::Cpu).unwrap()
 }
 
 /// A random batch matching `learner`, with a terminal in snippet 0.
-pub fn random_batch(learner: &MoMpoLearner, seed: i64) -> SnippetBatch {
+pub fn random_batch(learner: &Learner, seed: i64) -> SnippetBatch {
     tch::manual_seed(seed);
-    let (t, b) = (
-        learner.config().mpo.retrace_length as i64,
-        learner.config().mpo.batch_size as i64,
-    );
+    let settings = learner.settings();
+    let (t, b) = (settings.sequence_length as i64, settings.batch_size as i64);
     let dims = learner.dims();
     let opts = (Kind::Float, Device::Cpu);
     let observations = Tensor::randn([t + 1, b, dims.obs_dim], opts);
@@ -112,5 +112,32 @@ pub fn random_batch(learner: &MoMpoLearner, seed: i64) -> SnippetBatch {
         rewards,
         discounts,
         behaviour_log_probs,
+        valid: Tensor::ones([t, b], opts),
     }
+}
+
+/// MO-V-MPO with A.3's mocap torso (reference leaf, latent) and two learned objectives.
+pub fn movmpo_mocap_learner() -> Learner {
+    let mut cfg = small_config();
+    cfg.algorithm = Algorithm::MoVmpo;
+    cfg.objectives = ["task", "effort"]
+        .iter()
+        .map(|name| ObjectiveConfig { name: (*name).into(), epsilon: 0.1, source: ObjectiveSource::Learned })
+        .collect();
+    cfg.network.architecture =
+        Architecture::Mocap { encoder_layers: vec![8], latent_dim: 3, reference_match: "reference".into() };
+    cfg.network.critic_shared_layers = 2;
+    cfg.vmpo.unroll_length = 4;
+    cfg.vmpo.batch_size = 5;
+    cfg.vmpo.target_update_period = 2;
+    let dims = LearnerDims {
+        obs_dim: OBS,
+        action: ActionKind::Continuous { dim: 2 },
+        reward_names: vec!["task".into(), "effort".into()],
+        obs_leaves: vec![
+            ObsLeaf { name: "walker/joints".into(), dim: 1 },
+            ObsLeaf { name: "walker/reference_pos".into(), dim: 2 },
+        ],
+    };
+    Learner::new(cfg, dims, Device::Cpu).unwrap()
 }

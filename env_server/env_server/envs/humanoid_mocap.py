@@ -18,7 +18,10 @@ fix, applied by `env_server.mocap.patch_loader()`.
 The composer environment's observation dict (the walker's proprioception and the reference
 observables for the next 5 frames), each entry flattened and concatenated in the
 environment's observation-spec order, float32. The layout (key -> slice) is
-`self.obs_slices`; with the default walker it has 2722 entries.
+`self.obs_slices`; with the default walker it has 2722 entries. With
+`dict_observation=True` the same entries arrive as a Dict space of flat float32 Boxes
+(empty entries dropped), so that a client can tell the reference observables
+(`walker/reference_*`) from proprioception, as the paper's A.3 policy architecture needs.
 
 ## Action
 Box(-1, 1, (56,), float32), mapped linearly to each position actuator's ctrlrange (the joint
@@ -90,6 +93,7 @@ class HumanoidMocap(Task):
         clip_ids: Sequence[str] | None = None,
         scalarized_lambda: float | None = None,
         min_steps: int = 10,
+        dict_observation: bool = False,
     ) -> None:
         import h5py
         from dm_control import composer
@@ -123,7 +127,17 @@ class HumanoidMocap(Task):
             self.obs_slices[key] = slice(start, start + size)
             start += size
         self._obs = np.zeros(start, np.float32)
-        self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (start,), np.float32)
+        self.dict_observation = dict_observation
+        if dict_observation:
+            self.observation_space = gymnasium.spaces.Dict(
+                [
+                    (key, gymnasium.spaces.Box(-np.inf, np.inf, (sl.stop - sl.start,), np.float32))
+                    for key, sl in self.obs_slices.items()
+                    if sl.stop > sl.start
+                ]
+            )
+        else:
+            self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (start,), np.float32)
         aspec = self.env.action_spec()
         self._ctrl_low = aspec.minimum.astype(np.float64)
         self._ctrl_half = 0.5 * (aspec.maximum - aspec.minimum).astype(np.float64)
@@ -157,9 +171,11 @@ class HumanoidMocap(Task):
     def clip_id(self) -> str:
         return self.clip_ids[self.task._current_clip_index]
 
-    def _flatten(self, observation: dict[str, Any]) -> np.ndarray:
+    def _flatten(self, observation: dict[str, Any]) -> Any:
         for key, sl in self.obs_slices.items():
             self._obs[sl] = np.asarray(observation[key], np.float32).reshape(-1)
+        if self.dict_observation:
+            return {key: self._obs[sl] for key, sl in self.obs_slices.items() if sl.stop > sl.start}
         return self._obs
 
     def _info(self) -> dict[str, Any]:

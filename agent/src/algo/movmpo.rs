@@ -1,0 +1,185 @@
+//! The MO-V-MPO learner (appendix D), also running scalarized V-MPO (one value
+//! function on `sum_k w_k r_k`, one epsilon; eq. 8 for mocap) through the same code.
+//! It shares the networks, duals, trust-region fit and target schedule of MO-MPO
+//! (`state.rs`); what differs is policy evaluation and step 1.
+//!
+//! One `step` on B on-policy unrolls of T steps (each used once) does, in order:
+//! 1. **Policy evaluation** (D.1, eq. 21): the online critics give V_c at all
+//!    N' = (T+1)B states; T-step targets `G_t = r_t + gamma d_t G'_{t+1}` with
+//!    `G'_{t+1} = G_{t+1}` for a real next step and `V(s_{t+1})` at the unroll's end or
+//!    before padding (so a truncated episode bootstraps and a terminated one does not);
+//!    advantages `A = G - V` (no gradient); the critics are regressed on G (0.5 *
+//!    squared error, mean over real steps, summed over heads), one Adam step.
+//! 2. **Step 1** (D.2.1, eqs. 22-24) per objective on the N = TB pairs: top-k selection
+//!    among real steps, weights over the batch and the temperature duals
+//!    (`estep::advantage_estep`).
+//! 3. **Step 2** (D.2.2, eq. 25): weighted maximum likelihood of the taken actions with
+//!    the decoupled trust region against pi_old, the target policy (Table 5 betas);
+//!    one Adam step on the policy and one on the duals. A latent policy torso (A.3)
+//!    evaluates online and target policies with the same latent noise.
+//! 4. Every `target_update_period` steps pi_old is copied from the online policy.
+//!
+//! Shape legend: T unroll length, B unrolls, N = TB pairs, D action dims, A discrete
+//! actions, K objectives, C critics.
+
+use super::batch::SnippetBatch;
+use super::estep::advantage_estep;
+use super::objectives::QSource;
+use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since};
+use crate::nets::PolicyOutput;
+use std::time::Instant;
+use tch::{Kind, Tensor};
+
+/// Inputs of the T-step targets.
+#[derive(Debug)]
+pub struct UnrollTargetInputs<'a> {
+    /// `[T, B, C]` rewards of the critic heads.
+    pub rewards: &'a Tensor,
+    /// `[T, B]`: 0 when s_{t+1} is terminal.
+    pub discounts: &'a Tensor,
+    /// `[T, B]`: 1 for real steps, 0 for padding.
+    pub valid: &'a Tensor,
+    /// `[T+1, B, C]`: V at s_0 .. s_T.
+    pub values: &'a Tensor,
+    /// gamma.
+    pub gamma: f64,
+}
+
+/// T-step return targets of eq. 21 (see module docs). # Shapes `-> [T, B, C]`.
+pub fn unroll_targets(x: &UnrollTargetInputs<'_>) -> Tensor {
+    let t_len = x.rewards.size()[0];
+    let mut next = x.values.get(t_len);
+    let mut out = Vec::with_capacity(t_len as usize);
+    for t in (0..t_len).rev() {
+        let g = x.rewards.get(t) + (x.discounts.get(t) * x.gamma).unsqueeze(-1) * &next;
+        if t > 0 {
+            // What step t-1 bootstraps from: this step's target if real, else V(s_t).
+            let real = x.valid.get(t).unsqueeze(-1);
+            next = &real * &g + (1.0 - &real) * x.values.get(t);
+        }
+        out.push(g);
+    }
+    out.reverse();
+    Tensor::stack(&out, 0)
+}
+
+impl Learner {
+    /// One MO-V-MPO step (critic update, step 1, step 2, duals, target update) on a
+    /// checked batch of on-policy unrolls.
+    pub(super) fn vmpo_step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
+        let start = Instant::now();
+        let batch = batch.to_device(self.device);
+        let (t_len, b) = (batch.len(), batch.batch_size());
+        let n = t_len * b;
+        let heads = self.bound.critic_names.len() as i64;
+        let obs_all = batch.observations.reshape([(t_len + 1) * b, self.dims.obs_dim]);
+        let obs_taken = obs_all.narrow(0, 0, n);
+        let Critics::V { online: critic } = &self.critics else {
+            unreachable!("V-MPO learners are built with state-value critics")
+        };
+
+        // 1. Policy evaluation (D.1, eq. 21).
+        let values = critic.forward(&obs_all).reshape([t_len + 1, b, heads]);
+        let rewards = self.critic_rewards(&batch.rewards);
+        let targets = tch::no_grad(|| {
+            unroll_targets(&UnrollTargetInputs {
+                rewards: &rewards,
+                discounts: &batch.discounts,
+                valid: &batch.valid,
+                values: &values.detach(),
+                gamma: self.settings.discount,
+            })
+        });
+        let v_taken = values.narrow(0, 0, t_len);
+        let advantages = (&targets - v_taken.detach()).reshape([n, heads]);
+        let valid = batch.valid.reshape([n]);
+        let real_steps = valid.sum(Kind::Float).clamp_min(1.0);
+        let per_head = ((v_taken - &targets).square().reshape([n, heads]) * valid.unsqueeze(-1))
+            .sum_dim_intlist(0, false, Kind::Float)
+            / &real_steps
+            * 0.5;
+        let value_mean = (values.detach().narrow(0, 0, t_len).reshape([n, heads]) * valid.unsqueeze(-1))
+            .sum_dim_intlist(0, false, Kind::Float)
+            / &real_steps;
+        self.update_critics(&per_head.sum(Kind::Float));
+        let policy_evaluation_ms = ms_since(start, self.device);
+
+        // 2. Step 1 (D.2.1): per-objective top-k weights and temperature duals.
+        let start = Instant::now();
+        let columns: Vec<Tensor> = self
+            .bound
+            .objectives
+            .iter()
+            .map(|o| match o.source {
+                QSource::Critic { head } => advantages.select(-1, head as i64),
+                QSource::ActionNorm => unreachable!("bind_config rejects closed-form objectives for V-MPO"),
+            })
+            .collect();
+        let objective_advantages = Tensor::stack(&columns, -1);
+        let estep = advantage_estep(
+            &objective_advantages,
+            &valid,
+            &self.duals.temperature(),
+            &self.epsilon,
+            self.cfg.vmpo.top_k_fraction,
+        );
+        // fit_policy averages over the N pairs; the weights sum to 1 over the batch.
+        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float) * n as f64;
+        let e_step_ms = ms_since(start, self.device);
+
+        // 3. Step 2 (D.2.2, eq. 25) and dual updates.
+        let start = Instant::now();
+        let noise = self.policy.latent_noise(n);
+        let target_out = tch::no_grad(|| self.target_policy.forward_with_noise(&obs_taken, noise.as_ref()));
+        let online_out = self.policy.forward_with_noise(&obs_taken, noise.as_ref());
+        let (actions, weights) = match &online_out {
+            PolicyOutput::Gaussian(_) => (batch.actions.flatten(0, 1).unsqueeze(0), weights.unsqueeze(0)),
+            PolicyOutput::Categorical(logits) => {
+                let taken = batch.actions.flatten(0, 1);
+                let one_hot = taken.one_hot(logits.size()[1]).to_kind(Kind::Float).transpose(0, 1);
+                (taken, one_hot * weights.unsqueeze(0))
+            }
+        };
+        let policy_kl = self.fit_policy(&online_out, &target_out, &actions, &weights, &estep.temperature_loss);
+        let m_step_ms = ms_since(start, self.device);
+
+        // 4. pi_old.
+        self.finish_step(StepMeasures {
+            critic_loss: per_head,
+            estep_kl: estep.kl,
+            value_mean,
+            policy_kl,
+            timings: PhaseTimings { policy_evaluation_ms, e_step_ms, m_step_ms, target_update_ms: 0.0 },
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn targets_bootstrap_at_the_end_and_before_padding_but_not_after_termination() {
+        // One head, gamma 0.5. Unroll 0: steps 0-2 real, none terminal; V(s_3) = 8.
+        // Unroll 1: step 0 terminal, steps 1-2 padding.
+        // Unroll 2: step 0 truncated (discount 1), steps 1-2 padding, V(s_1) = 4.
+        let t = |v: &[f32]| Tensor::from_slice(v);
+        let rewards = t(&[1.0, 5.0, 1.0, 2.0, 0.0, 0.0, 3.0, 0.0, 0.0]).reshape([3, 3, 1]);
+        let discounts = t(&[1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0]).reshape([3, 3]);
+        let valid = t(&[1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0]).reshape([3, 3]);
+        let values = t(&[0.0, 0.0, 0.0, 0.0, 9.0, 4.0, 0.0, 9.0, 9.0, 8.0, 9.0, 9.0]).reshape([4, 3, 1]);
+        let g = unroll_targets(&UnrollTargetInputs {
+            rewards: &rewards,
+            discounts: &discounts,
+            valid: &valid,
+            values: &values,
+            gamma: 0.5,
+        });
+        // Unroll 0 (rewards 1, 2, 3): G_2 = 3 + 0.5 * 8 = 7, G_1 = 2 + 3.5 = 5.5,
+        // G_0 = 1 + 2.75 = 3.75. Unroll 1: G_0 = 5 (terminal).
+        // Unroll 2: G_0 = 1 + 0.5 * V(s_1) = 1 + 2 = 3.
+        assert!((g.double_value(&[0, 0, 0]) - 3.75).abs() < 1e-6, "{g}");
+        assert!((g.double_value(&[0, 1, 0]) - 5.0).abs() < 1e-6, "{g}");
+        assert!((g.double_value(&[0, 2, 0]) - 3.0).abs() < 1e-6, "{g}");
+    }
+}

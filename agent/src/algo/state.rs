@@ -1,0 +1,314 @@
+//! The learner's state and the machinery its algorithms share: networks and their
+//! targets, Adam optimizers, the duals (eta_k, alpha), the bound objectives, the
+//! trust-region policy fit and the target-network schedule.
+//!
+//! One `Learner` runs any of the four algorithms; `step` is the one `match` over the
+//! two families: MO-MPO / scalarized MPO (`mompo.rs`, Q critics with targets) and
+//! MO-V-MPO / scalarized V-MPO (`movmpo.rs`, state-value critics).
+//!
+//! The policy fit is the M-step of eqs. 16-20 (MO-MPO) and the step 2 of eq. 25
+//! (MO-V-MPO): weighted maximum likelihood under the decoupled trust region
+//! (`mstep.rs`), one Adam step on the policy and one on the duals.
+//!
+//! Shape legend: N states, M samples (or A actions), D action dims, K objectives,
+//! C learned critics.
+
+use super::adam::{Adam, AdamConfig};
+use super::batch::{BatchError, SnippetBatch};
+use super::dual::Duals;
+use super::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
+use super::objectives::{BoundObjectives, LearnerDims, bind_config};
+pub use super::stats::{LearnerStats, PhaseTimings};
+use crate::config::{ConfigError, LearnerConfig, SharedSettings};
+use crate::device::synchronize;
+use crate::nets::{ActOutput, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot, ValueNet};
+use std::time::Instant;
+use tch::{Device, Kind, Tensor, nn};
+
+/// Errors of constructing or stepping the learner.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    /// Invalid configuration or objective binding.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// A batch that does not fit.
+    #[error(transparent)]
+    Batch(#[from] BatchError),
+    /// libtorch failed.
+    #[error("libtorch: {0}")]
+    Torch(#[from] tch::TchError),
+}
+
+/// A target network (C.1): same layout as `online`'s network, built by `build` on a new
+/// VarStore on the same device, parameters copied, frozen (no gradients).
+fn frozen_copy<N>(
+    online: &nn::VarStore,
+    build: impl FnOnce(&nn::VarStore) -> N,
+) -> Result<(nn::VarStore, N), tch::TchError> {
+    let mut vs = nn::VarStore::new(online.device());
+    let net = build(&vs);
+    vs.copy(online)?;
+    vs.freeze();
+    Ok((vs, net))
+}
+
+/// The critics of either family.
+#[derive(Debug)]
+#[allow(clippy::large_enum_variant, reason = "one per learner; boxing buys nothing")]
+pub(crate) enum Critics {
+    /// MO-MPO: Q_c(s, a) with a frozen target copy (C.1).
+    Q {
+        online: MultiCritic,
+        target: MultiCritic,
+        target_vs: nn::VarStore,
+    },
+    /// MO-V-MPO: V_c(s), bootstrapped from itself (D.1).
+    V { online: ValueNet },
+}
+
+/// What a step measured before its target update (tensors on the learner's device).
+#[derive(Debug)]
+pub(crate) struct StepMeasures {
+    /// `[C]` critic losses.
+    pub critic_loss: Tensor,
+    /// `[K]` realised KL(q_k || pi_old).
+    pub estep_kl: Tensor,
+    /// `[K]` mean Q_k of the samples (MPO) or `[C]` mean V_c (V-MPO).
+    pub value_mean: Tensor,
+    /// KL parts between target and online policy.
+    pub policy_kl: Tensor,
+    /// Phase timings; `target_update_ms` is filled in by `finish_step`.
+    pub timings: PhaseTimings,
+}
+
+/// Networks, targets, optimizers, duals and the step counter of one learner.
+#[derive(Debug)]
+pub struct Learner {
+    pub(crate) cfg: LearnerConfig,
+    pub(crate) settings: SharedSettings,
+    pub(crate) dims: LearnerDims,
+    pub(crate) bound: BoundObjectives,
+    pub(crate) device: Device,
+    pub(crate) policy_vs: nn::VarStore,
+    pub(crate) policy: Policy,
+    pub(crate) target_policy_vs: nn::VarStore,
+    pub(crate) target_policy: Policy,
+    pub(crate) critic_vs: nn::VarStore,
+    pub(crate) critics: Critics,
+    pub(crate) policy_opt: Adam,
+    pub(crate) critic_opt: Adam,
+    pub(crate) duals: Duals,
+    /// `[K]`: epsilon_k of the bound objectives.
+    pub(crate) epsilon: Tensor,
+    /// `[K_env, C]`: which reward each critic head learns.
+    pub(crate) critic_reward_weights: Tensor,
+    pub(crate) step: u64,
+}
+
+pub(crate) fn to_vec(t: &Tensor) -> Vec<f32> {
+    Vec::<f32>::try_from(&t.detach().to_device(Device::Cpu).to_kind(Kind::Float).flatten(0, -1))
+        .unwrap_or_default()
+}
+
+pub(crate) fn ms_since(start: Instant, device: Device) -> f64 {
+    synchronize(device);
+    start.elapsed().as_secs_f64() * 1e3
+}
+
+impl Learner {
+    /// Builds networks (seeded by `cfg.seed`), target copies, optimizers and duals.
+    pub fn new(cfg: LearnerConfig, dims: LearnerDims, device: Device) -> Result<Self, LearnerError> {
+        let bound = bind_config(&cfg, &dims)?;
+        let settings = cfg.shared();
+        tch::manual_seed(cfg.seed as i64);
+        let net = &cfg.network;
+        let heads = bound.critic_names.len() as i64;
+        let policy_vs = nn::VarStore::new(device);
+        let policy = Policy::new(&(policy_vs.root() / "policy"), net, &dims);
+        let (target_policy_vs, target_policy) =
+            frozen_copy(&policy_vs, |vs| Policy::new(&(vs.root() / "policy"), net, &dims))?;
+        let critic_vs = nn::VarStore::new(device);
+        let critics = if cfg.algorithm.on_policy() {
+            Critics::V { online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads) }
+        } else {
+            let build = |vs: &nn::VarStore| {
+                MultiCritic::new(&(vs.root() / "critic"), net, dims.obs_dim, dims.action, heads)
+            };
+            let online = build(&critic_vs);
+            let (target_vs, target) = frozen_copy(&critic_vs, build)?;
+            Critics::Q { online, target, target_vs }
+        };
+        let adam = AdamConfig::new(settings.learning_rate, settings.adam_eps);
+        let policy_opt = Adam::for_var_store(&policy_vs, adam);
+        let critic_opt = Adam::for_var_store(&critic_vs, adam);
+        let temperatures = vec![settings.init_temperature; bound.objectives.len()];
+        let alphas = match dims.action {
+            ActionKind::Continuous { .. } => vec![settings.init_alpha_mean, settings.init_alpha_cov],
+            ActionKind::Discrete { .. } => vec![settings.init_alpha_categorical],
+        };
+        let duals = Duals::new(&temperatures, &alphas, settings.dual_learning_rate, device);
+        let eps: Vec<f32> = bound.objectives.iter().map(|o| o.epsilon as f32).collect();
+        let epsilon = Tensor::from_slice(&eps).to_device(device);
+        let w: Vec<f32> = bound.critic_reward_weights.iter().flatten().map(|&w| w as f32).collect();
+        let critic_reward_weights =
+            Tensor::from_slice(&w).reshape([dims.reward_names.len() as i64, heads]).to_device(device);
+        Ok(Self {
+            cfg,
+            settings,
+            dims,
+            bound,
+            device,
+            policy_vs,
+            policy,
+            target_policy_vs,
+            target_policy,
+            critic_vs,
+            critics,
+            policy_opt,
+            critic_opt,
+            duals,
+            epsilon,
+            critic_reward_weights,
+            step: 0,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &LearnerConfig {
+        &self.cfg
+    }
+
+    /// The hyperparameters of this algorithm family (batch size, sequence length, ...).
+    pub fn settings(&self) -> &SharedSettings {
+        &self.settings
+    }
+
+    /// The dimensions the learner was built for.
+    pub fn dims(&self) -> &LearnerDims {
+        &self.dims
+    }
+
+    /// Bound objectives (E-step order) and critic heads.
+    pub fn objectives(&self) -> &BoundObjectives {
+        &self.bound
+    }
+
+    /// Learner steps done.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// Device of the networks.
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    /// Actions from the online policy (sampled, or the mode with `deterministic`).
+    /// # Shapes
+    /// `obs [B, O]` -> actions `[B, D]` f32 or `[B]` i64, log-probs `[B]`.
+    pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
+        self.policy.act(&obs.to_device(self.device), deterministic)
+    }
+
+    /// Copy of the online policy parameters for actors.
+    pub fn policy_snapshot(&self) -> PolicySnapshot {
+        PolicySnapshot::from_var_store(&self.policy_vs)
+    }
+
+    /// One learner step of the configured algorithm on B sequences of T steps.
+    pub fn step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
+        batch.check(self.dims.obs_dim, self.dims.action, self.dims.reward_names.len() as i64)?;
+        if self.cfg.algorithm.on_policy() { self.vmpo_step(batch) } else { self.mpo_step(batch) }
+    }
+
+    /// Rewards of the critic heads. # Shapes `rewards [T, B, K_env] -> [T, B, C]`.
+    pub(crate) fn critic_rewards(&self, rewards: &Tensor) -> Tensor {
+        rewards.matmul(&self.critic_reward_weights)
+    }
+
+    /// One Adam step on the critics for `loss`, clipped as configured.
+    pub(crate) fn update_critics(&mut self, loss: &Tensor) {
+        self.critic_opt.zero_grad();
+        loss.backward();
+        if let Some(max) = self.settings.grad_clip_norm {
+            self.critic_opt.clip_grad_norm(max);
+        }
+        self.critic_opt.step();
+    }
+
+    /// Policy fit under the decoupled trust region plus `temperature_loss`; one Adam
+    /// step on the policy and one on the duals. Returns the KL parts (KL_mu, KL_Sigma)
+    /// or (KL) between target and online policy before the update.
+    /// # Shapes
+    /// Gaussian: `actions [M, N, D]`, `weights [M, N]`; categorical: `actions`
+    /// unused, `weights [A, N]`. The loss is `-mean_N sum_M w log pi`, so weights that
+    /// sum to 1 over the batch must come scaled by N.
+    pub(crate) fn fit_policy(
+        &mut self,
+        online: &PolicyOutput,
+        target: &PolicyOutput,
+        actions: &Tensor,
+        weights: &Tensor,
+        temperature_loss: &Tensor,
+    ) -> Tensor {
+        let alpha = self.duals.alpha();
+        let s = self.settings;
+        let (policy_loss, alpha_loss, policy_kl) = match (online, target) {
+            (PolicyOutput::Gaussian(online), PolicyOutput::Gaussian(target)) => {
+                let (alpha_mean, alpha_cov) = (alpha.get(0), alpha.get(1));
+                let region = TrustRegion {
+                    alpha_mean: &alpha_mean,
+                    alpha_cov: &alpha_cov,
+                    beta_mean: s.beta_mean,
+                    beta_cov: s.beta_cov,
+                };
+                let out = gaussian_mstep(online, target, actions, weights, &region);
+                (out.policy_loss, out.alpha_loss, Tensor::stack(&[out.kl_mean, out.kl_cov], 0))
+            }
+            (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
+                let out = categorical_mstep(online, target, weights, &alpha.get(0), s.beta_categorical);
+                (out.policy_loss, out.alpha_loss, out.kl.unsqueeze(0))
+            }
+            _ => unreachable!("online and target policies have the same kind"),
+        };
+        self.policy_opt.zero_grad();
+        self.duals.zero_grad();
+        (policy_loss + alpha_loss + temperature_loss).backward();
+        if let Some(max) = s.grad_clip_norm {
+            self.policy_opt.clip_grad_norm(max);
+        }
+        self.policy_opt.step();
+        self.duals.step();
+        policy_kl
+    }
+
+    /// Counts the step, copies the targets when due, and reports the step.
+    pub(crate) fn finish_step(&mut self, measured: StepMeasures) -> Result<LearnerStats, LearnerError> {
+        let start = Instant::now();
+        self.advance_targets()?;
+        let target_update_ms = ms_since(start, self.device);
+        let (temperature, alpha) = self.duals.values();
+        Ok(LearnerStats {
+            step: self.step,
+            critic_loss: to_vec(&measured.critic_loss),
+            temperature,
+            estep_kl: to_vec(&measured.estep_kl),
+            q_mean: to_vec(&measured.value_mean),
+            alpha,
+            policy_kl: to_vec(&measured.policy_kl),
+            timings: PhaseTimings { target_update_ms, ..measured.timings },
+        })
+    }
+
+    /// Counts the step and copies the target networks when due (C.1).
+    pub(crate) fn advance_targets(&mut self) -> Result<(), LearnerError> {
+        self.step += 1;
+        if self.step.is_multiple_of(self.settings.target_update_period) {
+            self.target_policy_vs.copy(&self.policy_vs)?;
+            if let Critics::Q { target_vs, .. } = &mut self.critics {
+                target_vs.copy(&self.critic_vs)?;
+            }
+        }
+        Ok(())
+    }
+}

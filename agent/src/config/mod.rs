@@ -1,0 +1,419 @@
+//! Learner configuration for MO-MPO, MO-V-MPO and their scalarized baselines.
+//!
+//! `Default` gives the paper's values (Abdolmaleki et al. 2020, appendix A): Table 2 in
+//! `mpo`, Table 5 in `vmpo`; every Table 3 override (humanoid, Shadow Hand, Sawyer) is
+//! a field, so a preset is a TOML file. Each field's comment names the table row it
+//! comes from, or says where it comes from when the paper leaves it open (Acme's TF
+//! MO-MPO and rlax's V-MPO, see `research/acme_mompo.md` §6-7).
+
+mod mpo;
+mod network;
+mod vmpo;
+
+pub use mpo::MpoConfig;
+pub use network::{Architecture, NetworkConfig};
+pub use vmpo::VmpoConfig;
+
+use serde::{Deserialize, Serialize};
+
+/// Where an objective's Q-value comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectiveSource {
+    /// A critic head trained on the env's reward column of the same name.
+    #[default]
+    Learned,
+    /// `-||a||_2` computed exactly from the sampled action (humanoid run, appendix A);
+    /// no critic. The env's reward column of that name is only logged.
+    ActionNorm,
+}
+
+/// One MO-MPO objective, bound by name to an env reward column (Table 4 epsilons).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectiveConfig {
+    /// Name of the env objective (`EnvSpec::objectives[..].name`).
+    pub name: String,
+    /// KL bound epsilon_k of the E-step (Table 2 "default epsilon" 0.1). 0 means the
+    /// objective has no influence: its improved distribution is the target policy.
+    pub epsilon: f64,
+    /// Learned critic or closed form.
+    #[serde(default)]
+    pub source: ObjectiveSource,
+}
+
+/// One scalarization weight, bound by name to an env reward column (Table 4).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectiveWeight {
+    /// Name of the env objective.
+    pub name: String,
+    /// Weight w_k of its reward in sum_k w_k r_k.
+    pub weight: f64,
+}
+
+/// Which learner to run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Algorithm {
+    /// MO-MPO (Algorithm 3): one critic and one epsilon per objective.
+    MoMpo,
+    /// Scalarized MPO: one critic on sum_k w_k r_k and one epsilon.
+    ScalarizedMpo {
+        /// KL bound of the single E-step (Table 2 "default epsilon" 0.1).
+        epsilon: f64,
+        /// One weight per env objective.
+        weights: Vec<ObjectiveWeight>,
+    },
+    /// MO-V-MPO (appendix D): on-policy, one state-value critic and one epsilon per
+    /// objective.
+    MoVmpo,
+    /// Scalarized V-MPO: one state-value critic on sum_k w_k r_k (eq. 8 for mocap)
+    /// and one epsilon.
+    ScalarizedVmpo {
+        /// KL bound of the single step 1 (Table 5 "default epsilon" 0.1).
+        epsilon: f64,
+        /// One weight per env objective.
+        weights: Vec<ObjectiveWeight>,
+    },
+}
+
+impl Algorithm {
+    /// V-MPO family: on-policy unrolls, state-value critics, `vmpo` hyperparameters.
+    pub fn on_policy(&self) -> bool {
+        matches!(self, Algorithm::MoVmpo | Algorithm::ScalarizedVmpo { .. })
+    }
+
+    /// Short name for run directories and tables.
+    pub fn short_name(&self) -> &'static str {
+        match self {
+            Algorithm::MoMpo => "mompo",
+            Algorithm::ScalarizedMpo { .. } => "mpo",
+            Algorithm::MoVmpo => "movmpo",
+            Algorithm::ScalarizedVmpo { .. } => "vmpo",
+        }
+    }
+
+    /// The scalarization (epsilon, weights) of the scalarized baselines.
+    pub fn scalarization(&self) -> Option<(f64, &[ObjectiveWeight])> {
+        match self {
+            Algorithm::ScalarizedMpo { epsilon, weights } | Algorithm::ScalarizedVmpo { epsilon, weights } => {
+                Some((*epsilon, weights))
+            }
+            Algorithm::MoMpo | Algorithm::MoVmpo => None,
+        }
+    }
+}
+
+/// Everything the learner needs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerConfig {
+    /// Which algorithm.
+    pub algorithm: Algorithm,
+    /// MO-MPO / MO-V-MPO objectives (ignored by the scalarized baselines).
+    pub objectives: Vec<ObjectiveConfig>,
+    /// Network sizes and options.
+    pub network: NetworkConfig,
+    /// MPO and training hyperparameters (MO-MPO, scalarized MPO).
+    pub mpo: MpoConfig,
+    /// V-MPO and training hyperparameters (MO-V-MPO, scalarized V-MPO).
+    pub vmpo: VmpoConfig,
+    /// Seed of network initialisation.
+    pub seed: u64,
+    /// libtorch intra-op threads; `None` = all available cores.
+    pub num_threads: Option<usize>,
+}
+
+impl Default for LearnerConfig {
+    fn default() -> Self {
+        Self {
+            algorithm: Algorithm::MoMpo,
+            objectives: Vec::new(),
+            network: NetworkConfig::default(),
+            mpo: MpoConfig::default(),
+            vmpo: VmpoConfig::default(),
+            seed: 0,
+            num_threads: None,
+        }
+    }
+}
+
+/// The hyperparameters both algorithm families have, read from `mpo` (MO-MPO,
+/// scalarized MPO) or `vmpo` (MO-V-MPO, scalarized V-MPO), so that the shared
+/// machinery (optimizers, duals, trust region, targets, batching) has one source.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SharedSettings {
+    /// Adam learning rate of policy and critics.
+    pub learning_rate: f64,
+    /// Adam epsilon of policy and critics.
+    pub adam_eps: f64,
+    /// Adam learning rate of the duals.
+    pub dual_learning_rate: f64,
+    /// Initial eta_k.
+    pub init_temperature: f64,
+    /// Initial alpha_mu.
+    pub init_alpha_mean: f64,
+    /// Initial alpha_Sigma.
+    pub init_alpha_cov: f64,
+    /// Initial categorical alpha.
+    pub init_alpha_categorical: f64,
+    /// beta_mu.
+    pub beta_mean: f64,
+    /// beta_Sigma.
+    pub beta_cov: f64,
+    /// Categorical beta.
+    pub beta_categorical: f64,
+    /// Snippets (MPO) or unrolls (V-MPO) per learner step.
+    pub batch_size: usize,
+    /// Transitions per snippet (Retrace length) or unroll.
+    pub sequence_length: usize,
+    /// gamma.
+    pub discount: f64,
+    /// Learner steps between target-network copies.
+    pub target_update_period: u64,
+    /// Gradient clip of policy and critics.
+    pub grad_clip_norm: Option<f64>,
+}
+
+impl LearnerConfig {
+    /// The shared hyperparameters of this config's algorithm family.
+    pub fn shared(&self) -> SharedSettings {
+        if self.algorithm.on_policy() {
+            let v = &self.vmpo;
+            SharedSettings {
+                learning_rate: v.learning_rate,
+                adam_eps: v.adam_eps,
+                dual_learning_rate: v.dual_learning_rate,
+                init_temperature: v.init_temperature,
+                init_alpha_mean: v.init_alpha_mean,
+                init_alpha_cov: v.init_alpha_cov,
+                init_alpha_categorical: v.init_alpha_categorical,
+                beta_mean: v.beta_mean,
+                beta_cov: v.beta_cov,
+                beta_categorical: v.beta_categorical,
+                batch_size: v.batch_size,
+                sequence_length: v.unroll_length,
+                discount: v.discount,
+                target_update_period: v.target_update_period,
+                grad_clip_norm: v.grad_clip_norm,
+            }
+        } else {
+            let m = &self.mpo;
+            SharedSettings {
+                learning_rate: m.learning_rate,
+                adam_eps: m.adam_eps,
+                dual_learning_rate: m.dual_learning_rate,
+                init_temperature: m.init_temperature,
+                init_alpha_mean: m.init_alpha_mean,
+                init_alpha_cov: m.init_alpha_cov,
+                init_alpha_categorical: m.init_alpha_categorical,
+                beta_mean: m.beta_mean,
+                beta_cov: m.beta_cov,
+                beta_categorical: m.beta_categorical,
+                batch_size: m.batch_size,
+                sequence_length: m.retrace_length,
+                discount: m.discount,
+                target_update_period: m.target_update_period,
+                grad_clip_norm: m.grad_clip_norm,
+            }
+        }
+    }
+}
+
+/// A configuration that cannot be used; the message quotes the received values.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    /// One field has an invalid value.
+    #[error("{field} must be {requirement}, got {got}")]
+    Invalid {
+        /// Dotted field path, e.g. `network.min_variance`.
+        field: String,
+        /// What the value must satisfy.
+        requirement: String,
+        /// The received value.
+        got: String,
+    },
+    /// Config names and env objective names do not match one to one.
+    #[error(
+        "{what} do not match the env objectives {env:?}: missing {missing:?}, extra {extra:?}, duplicate {duplicate:?}"
+    )]
+    ObjectiveNames {
+        /// `objectives` or `algorithm.weights`.
+        what: String,
+        /// The env's objective names in reward-column order.
+        env: Vec<String>,
+        /// Env objectives the config does not mention.
+        missing: Vec<String>,
+        /// Config names the env does not have.
+        extra: Vec<String>,
+        /// Names given more than once.
+        duplicate: Vec<String>,
+    },
+    /// A closed-form objective that the action space or algorithm does not allow.
+    #[error("objective {name:?} has source {kind:?}, which {reason}")]
+    Unsupported {
+        /// Objective name.
+        name: String,
+        /// Its source.
+        kind: ObjectiveSource,
+        /// Why not, e.g. "needs continuous actions".
+        reason: String,
+    },
+}
+
+fn invalid(field: &str, requirement: &str, got: impl std::fmt::Debug) -> ConfigError {
+    ConfigError::Invalid {
+        field: field.into(),
+        requirement: requirement.into(),
+        got: format!("{got:?}"),
+    }
+}
+
+fn check(
+    ok: bool,
+    field: &str,
+    requirement: &str,
+    got: impl std::fmt::Debug,
+) -> Result<(), ConfigError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(invalid(field, requirement, got))
+    }
+}
+
+fn finite_pos(x: f64) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+fn non_negative(field: &str, x: f64) -> Result<(), ConfigError> {
+    check(x >= 0.0 && x.is_finite(), field, ">= 0", x)
+}
+
+impl LearnerConfig {
+    /// Checks every field (names against the env are checked by `algo::objectives::bind`).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.network.validate()?;
+        if self.algorithm.on_policy() {
+            self.vmpo.validate()?;
+        } else {
+            self.mpo.validate()?;
+        }
+        if let Some(t) = self.num_threads {
+            check(t >= 1, "num_threads", ">= 1 when set", t)?;
+        }
+        match &self.algorithm {
+            Algorithm::MoMpo | Algorithm::MoVmpo => {
+                check(
+                    !self.objectives.is_empty(),
+                    "objectives",
+                    &format!("non-empty for {}", self.algorithm.short_name()),
+                    &self.objectives,
+                )?;
+                for (i, o) in self.objectives.iter().enumerate() {
+                    let field = format!("objectives[{i}].epsilon ({})", o.name);
+                    check(
+                        o.epsilon >= 0.0 && o.epsilon.is_finite(),
+                        &field,
+                        ">= 0",
+                        o.epsilon,
+                    )?;
+                }
+            }
+            Algorithm::ScalarizedMpo { epsilon, weights }
+            | Algorithm::ScalarizedVmpo { epsilon, weights } => {
+                check(finite_pos(*epsilon), "algorithm.epsilon", "> 0", epsilon)?;
+                check(
+                    !weights.is_empty(),
+                    "algorithm.weights",
+                    "non-empty",
+                    weights,
+                )?;
+                for (i, w) in weights.iter().enumerate() {
+                    let field = format!("algorithm.weights[{i}].weight ({})", w.name);
+                    check(w.weight.is_finite(), &field, "finite", w.weight)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_table_2() {
+        let c = LearnerConfig::default();
+        assert_eq!(c.network.policy_layers, vec![300, 200]);
+        assert_eq!(c.network.critic_layers, vec![400, 400, 300]);
+        assert_eq!(c.mpo.num_samples, 20);
+        assert_eq!((c.mpo.beta_mean, c.mpo.beta_cov), (1e-3, 1e-5));
+        assert_eq!((c.mpo.learning_rate, c.mpo.adam_eps), (3e-4, 1e-3));
+        assert_eq!(
+            (
+                c.mpo.batch_size,
+                c.mpo.target_update_period,
+                c.mpo.retrace_length
+            ),
+            (512, 200, 8)
+        );
+    }
+
+    #[test]
+    fn vmpo_defaults_are_table_5() {
+        let v = VmpoConfig::default();
+        assert_eq!((v.beta_mean, v.beta_cov), (0.1, 1e-5));
+        assert_eq!((v.learning_rate, v.batch_size, v.unroll_length), (1e-4, 128, 32));
+        assert_eq!((v.init_temperature, v.discount, v.top_k_fraction), (1.0, 0.95, 0.5));
+        let c = LearnerConfig { algorithm: Algorithm::MoVmpo, ..LearnerConfig::default() };
+        assert_eq!((c.shared().batch_size, c.shared().sequence_length), (128, 32));
+        assert_eq!(LearnerConfig::default().shared().sequence_length, 8, "MPO: the Retrace length");
+    }
+
+    #[test]
+    fn messages_quote_values() {
+        let mut c = LearnerConfig::default();
+        c.objectives.push(ObjectiveConfig {
+            name: "task".into(),
+            epsilon: 0.1,
+            source: ObjectiveSource::Learned,
+        });
+        c.validate().unwrap();
+        c.network.min_variance = -1e-3;
+        assert_eq!(
+            c.validate().unwrap_err().to_string(),
+            "network.min_variance must be > 0, got -0.001"
+        );
+    }
+
+    #[test]
+    fn toml_round_trip_and_unknown_fields() {
+        let text = r#"
+            seed = 3
+            [algorithm]
+            kind = "scalarized_mpo"
+            epsilon = 0.1
+            weights = [{ name = "task", weight = 0.9 }, { name = "action_norm", weight = 0.1 }]
+            [network]
+            policy_layers = [400, 400, 300]
+            tanh_on_action_mean = false
+            [mpo]
+            beta_mean = 5e-3
+        "#;
+        let c: LearnerConfig = toml::from_str(text).unwrap();
+        assert_eq!(c.network.policy_layers, vec![400, 400, 300]);
+        assert_eq!(c.mpo.beta_mean, 5e-3);
+        assert!(
+            matches!(c.algorithm, Algorithm::ScalarizedMpo { ref weights, .. } if weights.len() == 2)
+        );
+        c.validate().unwrap();
+        let bad = "[mpo]\nbeta_mena = 1.0\n";
+        let err = toml::from_str::<LearnerConfig>(bad)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("beta_mena"), "{err}");
+    }
+}

@@ -1,0 +1,106 @@
+//! MPO policy-evaluation and training hyperparameters of MO-MPO and scalarized MPO
+//! (Table 2 "MPO", "training"; Table 3 overrides are presets in `configs/`).
+
+use serde::{Deserialize, Serialize};
+
+use super::{ConfigError, check, finite_pos, non_negative};
+
+/// MPO, policy-evaluation and training hyperparameters (Table 2 "MPO", "training").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MpoConfig {
+    /// Table 2 "actions sampled per state" M = 20; Shadow Hand 30, Sawyer 15.
+    pub num_samples: i64,
+    /// Table 2 "KL-constraint on policy mean" beta_mu = 1e-3; humanoid 5e-3.
+    /// Bounds the KL summed over action dimensions (eq. 20).
+    pub beta_mean: f64,
+    /// Table 2 "KL-constraint on policy covariance" beta_Sigma = 1e-5; humanoid 1e-6.
+    pub beta_cov: f64,
+    /// A.2: KL constraint beta of the categorical policy (Deep Sea Treasure), 1e-3.
+    pub beta_categorical: f64,
+    /// Table 2 "initial temperature eta" 1 (the value of eta, not of its parameter).
+    pub init_temperature: f64,
+    /// Initial Lagrange multiplier alpha_mu. Not in the paper; Acme TF MO-MPO starts
+    /// its parameter at 1, i.e. softplus(1) ~ 1.31.
+    pub init_alpha_mean: f64,
+    /// Initial Lagrange multiplier alpha_Sigma. Not in the paper; Acme TF MO-MPO: 10.
+    pub init_alpha_cov: f64,
+    /// Initial Lagrange multiplier of the categorical KL. Not in the paper; 1.0.
+    pub init_alpha_categorical: f64,
+    /// Adam learning rate of all dual variables (eta_k, alpha). Not in the paper;
+    /// Acme uses 1e-2.
+    pub dual_learning_rate: f64,
+    /// Table 2 "Retrace sequence size" 8. A.2 (Deep Sea Treasure): 1, which makes
+    /// the Retrace target a one-step TD target.
+    pub retrace_length: usize,
+    /// Table 2 "discount factor gamma" 0.99; A.2 (Deep Sea Treasure) 0.999.
+    pub discount: f64,
+    /// Table 2 "target network update period" 200 learner steps; Sawyer 100.
+    pub target_update_period: u64,
+    /// Table 2 "Adam learning rate" 3e-4; humanoid 2e-4 (policy and critics).
+    pub learning_rate: f64,
+    /// Table 2 "Adam epsilon" 1e-3; humanoid 1e-8.
+    pub adam_eps: f64,
+    /// Table 2 "batch size" 512 (snippets per learner step).
+    pub batch_size: usize,
+    /// Table 2 "replay buffer size" 1e6 transitions (used by the replay, not the learner).
+    pub replay_capacity: usize,
+    /// Global-norm clip of policy and critic gradients (duals are never clipped).
+    /// Not in the paper; Acme TF clips at 40. `None` disables clipping.
+    pub grad_clip_norm: Option<f64>,
+}
+
+impl Default for MpoConfig {
+    fn default() -> Self {
+        Self {
+            num_samples: 20,
+            beta_mean: 1e-3,
+            beta_cov: 1e-5,
+            beta_categorical: 1e-3,
+            init_temperature: 1.0,
+            init_alpha_mean: 1.0,
+            init_alpha_cov: 10.0,
+            init_alpha_categorical: 1.0,
+            dual_learning_rate: 1e-2,
+            retrace_length: 8,
+            discount: 0.99,
+            target_update_period: 200,
+            learning_rate: 3e-4,
+            adam_eps: 1e-3,
+            batch_size: 512,
+            replay_capacity: 1_000_000,
+            grad_clip_norm: None,
+        }
+    }
+}
+
+impl MpoConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let m = self;
+        check(m.num_samples >= 1, "mpo.num_samples", ">= 1", m.num_samples)?;
+        non_negative("mpo.beta_mean", m.beta_mean)?;
+        non_negative("mpo.beta_cov", m.beta_cov)?;
+        non_negative("mpo.beta_categorical", m.beta_categorical)?;
+        for (field, v) in [
+            ("mpo.init_temperature", m.init_temperature),
+            ("mpo.init_alpha_mean", m.init_alpha_mean),
+            ("mpo.init_alpha_cov", m.init_alpha_cov),
+            ("mpo.init_alpha_categorical", m.init_alpha_categorical),
+            ("mpo.dual_learning_rate", m.dual_learning_rate),
+            ("mpo.learning_rate", m.learning_rate),
+            ("mpo.adam_eps", m.adam_eps),
+        ] {
+            check(finite_pos(v), field, "> 0", v)?;
+        }
+        check(m.retrace_length >= 1, "mpo.retrace_length", ">= 1", m.retrace_length)?;
+        check((0.0..=1.0).contains(&m.discount), "mpo.discount", "in [0, 1]", m.discount)?;
+        check(m.target_update_period >= 1, "mpo.target_update_period", ">= 1", m.target_update_period)?;
+        check(m.batch_size >= 1, "mpo.batch_size", ">= 1", m.batch_size)?;
+        check(m.replay_capacity >= m.batch_size, "mpo.replay_capacity", ">= mpo.batch_size", m.replay_capacity)?;
+        if let Some(c) = m.grad_clip_norm {
+            check(finite_pos(c), "mpo.grad_clip_norm", "> 0 when set", c)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,108 @@
+//! V-MPO hyperparameters of MO-V-MPO and scalarized V-MPO (appendix D; Table 5, the
+//! humanoid mocap experiments, which are the paper's only on-policy ones, so its
+//! values are the defaults; A.3 for the discount).
+
+use serde::{Deserialize, Serialize};
+
+use super::{ConfigError, check, finite_pos, non_negative};
+
+/// On-policy learner and unroll settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VmpoConfig {
+    /// Table 5 "unroll length (for n-step return, Sec. D.1)" 32: transitions per
+    /// unroll, and the T of the T-step return targets (eq. 21).
+    pub unroll_length: usize,
+    /// A.3: "k-step returns ... with a discount factor of 0.95".
+    pub discount: f64,
+    /// D.2.1 "top-k advantages": the fraction of the batch's advantages kept per
+    /// objective, 0.5 (Song et al. 2020).
+    pub top_k_fraction: f64,
+    /// Table 5 "KL-constraint on policy mean" beta_mu 0.1 (summed over action dims).
+    pub beta_mean: f64,
+    /// Table 5 "KL-constraint on policy covariance" beta_Sigma 1e-5.
+    pub beta_cov: f64,
+    /// KL bound of a categorical policy. Not in the paper (its V-MPO runs are all
+    /// Gaussian); 0.01, V-MPO's epsilon_alpha for discrete actions (Song et al. 2020).
+    pub beta_categorical: f64,
+    /// Table 5 "initial temperature eta" 1.
+    pub init_temperature: f64,
+    /// Initial alpha_mu. Not in the paper; 1.
+    pub init_alpha_mean: f64,
+    /// Initial alpha_Sigma. Not in the paper; 1.
+    pub init_alpha_cov: f64,
+    /// Initial alpha of a categorical policy. Not in the paper; 1.
+    pub init_alpha_categorical: f64,
+    /// Adam learning rate of the duals (eta_k, alpha). Not in the paper; 1e-2 as
+    /// for MO-MPO, so that one gradient step per learner step (D.2.1) moves eta.
+    pub dual_learning_rate: f64,
+    /// Table 5 "Adam learning rate" 1e-4 (policy and critics).
+    pub learning_rate: f64,
+    /// Adam epsilon. Not in Table 5; 1e-8 (Adam's usual value).
+    pub adam_eps: f64,
+    /// Table 5 "batch size" 128 unrolls per learner step; each is used once.
+    pub batch_size: usize,
+    /// Learner steps between copies of the policy into pi_old, the target of the KL
+    /// trust region (eq. 25). Not in the paper; V-MPO's T_target, 100.
+    pub target_update_period: u64,
+    /// Global-norm clip of policy and critic gradients. Not in the paper; off.
+    pub grad_clip_norm: Option<f64>,
+}
+
+impl Default for VmpoConfig {
+    fn default() -> Self {
+        Self {
+            unroll_length: 32,
+            discount: 0.95,
+            top_k_fraction: 0.5,
+            beta_mean: 0.1,
+            beta_cov: 1e-5,
+            beta_categorical: 0.01,
+            init_temperature: 1.0,
+            init_alpha_mean: 1.0,
+            init_alpha_cov: 1.0,
+            init_alpha_categorical: 1.0,
+            dual_learning_rate: 1e-2,
+            learning_rate: 1e-4,
+            adam_eps: 1e-8,
+            batch_size: 128,
+            target_update_period: 100,
+            grad_clip_norm: None,
+        }
+    }
+}
+
+impl VmpoConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let v = self;
+        check(v.unroll_length >= 1, "vmpo.unroll_length", ">= 1", v.unroll_length)?;
+        check((0.0..=1.0).contains(&v.discount), "vmpo.discount", "in [0, 1]", v.discount)?;
+        check(
+            v.top_k_fraction > 0.0 && v.top_k_fraction <= 1.0,
+            "vmpo.top_k_fraction",
+            "in (0, 1]",
+            v.top_k_fraction,
+        )?;
+        non_negative("vmpo.beta_mean", v.beta_mean)?;
+        non_negative("vmpo.beta_cov", v.beta_cov)?;
+        non_negative("vmpo.beta_categorical", v.beta_categorical)?;
+        for (field, x) in [
+            ("vmpo.init_temperature", v.init_temperature),
+            ("vmpo.init_alpha_mean", v.init_alpha_mean),
+            ("vmpo.init_alpha_cov", v.init_alpha_cov),
+            ("vmpo.init_alpha_categorical", v.init_alpha_categorical),
+            ("vmpo.dual_learning_rate", v.dual_learning_rate),
+            ("vmpo.learning_rate", v.learning_rate),
+            ("vmpo.adam_eps", v.adam_eps),
+        ] {
+            check(finite_pos(x), field, "> 0", x)?;
+        }
+        check(v.batch_size >= 1, "vmpo.batch_size", ">= 1", v.batch_size)?;
+        check(v.target_update_period >= 1, "vmpo.target_update_period", ">= 1", v.target_update_period)?;
+        if let Some(c) = v.grad_clip_norm {
+            check(finite_pos(c), "vmpo.grad_clip_norm", "> 0 when set", c)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,90 @@
+//! The learner's view of an env's sizes: the flattened observation (and, for Dict
+//! observations, which slice each named leaf occupies), the action space and the
+//! reward columns. Networks are built from it; checkpoints store it.
+
+use serde::{Deserialize, Serialize};
+
+use super::ActionKind;
+use crate::config::ConfigError;
+use crate::spec::{EnvSpec, Space};
+
+/// One leaf of the flattened observation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObsLeaf {
+    /// "."-joined Dict path ("" for a non-Dict space).
+    pub name: String,
+    /// Number of scalars.
+    pub dim: i64,
+}
+
+/// Sizes the networks need, taken from an `EnvSpec`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LearnerDims {
+    /// Flattened observation size.
+    pub obs_dim: i64,
+    /// Continuous (D) or discrete (A) actions.
+    pub action: ActionKind,
+    /// Env objective names in reward-column order (K_env columns).
+    pub reward_names: Vec<String>,
+    /// Observation leaves in flattening order (their dims sum to `obs_dim`).
+    #[serde(default)]
+    pub obs_leaves: Vec<ObsLeaf>,
+}
+
+fn leaves(prefix: &str, space: &Space, out: &mut Vec<ObsLeaf>) {
+    match space {
+        Space::Dict(entries) => {
+            for (key, sub) in entries {
+                let name = if prefix.is_empty() { key.clone() } else { format!("{prefix}.{key}") };
+                leaves(&name, sub, out);
+            }
+        }
+        other => out.push(ObsLeaf { name: prefix.to_string(), dim: other.flat_dim() as i64 }),
+    }
+}
+
+impl LearnerDims {
+    /// Reads the dimensions from a spec; a Dict action space is rejected.
+    pub fn from_spec(spec: &EnvSpec) -> Result<Self, ConfigError> {
+        let action = match &spec.action_space {
+            Space::Box(b) => ActionKind::Continuous { dim: b.numel() as i64 },
+            Space::Discrete(d) => ActionKind::Discrete { n: d.n },
+            other => {
+                return Err(ConfigError::Invalid {
+                    field: "env action_space".into(),
+                    requirement: "a Box or Discrete space".into(),
+                    got: format!("{other:?}"),
+                });
+            }
+        };
+        let mut obs_leaves = Vec::new();
+        leaves("", &spec.observation_space, &mut obs_leaves);
+        Ok(Self {
+            obs_dim: spec.observation_space.flat_dim() as i64,
+            action,
+            reward_names: spec.objective_names().into_iter().map(String::from).collect(),
+            obs_leaves,
+        })
+    }
+
+    /// Flat indices of the leaves whose name contains `pattern`, and of the others.
+    pub fn split_observation(&self, pattern: &str) -> ObsSplit {
+        let mut split = ObsSplit { matching: Vec::new(), rest: Vec::new() };
+        let mut start = 0;
+        for leaf in &self.obs_leaves {
+            let side = if leaf.name.contains(pattern) { &mut split.matching } else { &mut split.rest };
+            side.extend(start..start + leaf.dim);
+            start += leaf.dim;
+        }
+        split
+    }
+}
+
+/// Observation indices split by leaf name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObsSplit {
+    /// Indices of the matching leaves, ascending.
+    pub matching: Vec<i64>,
+    /// Indices of the other leaves, ascending.
+    pub rest: Vec<i64>,
+}
