@@ -1,0 +1,87 @@
+//! The hyperparameters MPO and V-MPO have in common, read from the section of the
+//! configured family (`mpo` or `vmpo`), so that the machinery both use (optimizers,
+//! duals, trust region, targets, batching) has one source.
+
+use super::LearnerConfig;
+
+/// The hyperparameters both algorithm families have, read from `mpo` (MO-MPO,
+/// scalarized MPO) or `vmpo` (MO-V-MPO, scalarized V-MPO), so that the shared
+/// machinery (optimizers, duals, trust region, targets, batching) has one source.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SharedSettings {
+    /// Adam learning rate of policy and critics.
+    pub learning_rate: f64,
+    /// Adam epsilon of policy and critics.
+    pub adam_eps: f64,
+    /// Adam learning rate of the duals.
+    pub dual_learning_rate: f64,
+    /// Initial eta_k.
+    pub init_temperature: f64,
+    /// Initial alpha_mu.
+    pub init_alpha_mean: f64,
+    /// Initial alpha_Sigma.
+    pub init_alpha_cov: f64,
+    /// Initial categorical alpha.
+    pub init_alpha_categorical: f64,
+    /// beta_mu.
+    pub beta_mean: f64,
+    /// beta_Sigma.
+    pub beta_cov: f64,
+    /// Categorical beta.
+    pub beta_categorical: f64,
+    /// Snippets (MPO) or unrolls (V-MPO) per learner step.
+    pub batch_size: usize,
+    /// Transitions per snippet (Retrace length) or unroll.
+    pub sequence_length: usize,
+    /// gamma.
+    pub discount: f64,
+    /// Learner steps between target-network copies.
+    pub target_update_period: u64,
+    /// Gradient clip of policy and critics.
+    pub grad_clip_norm: Option<f64>,
+}
+
+impl LearnerConfig {
+    /// The shared hyperparameters of this config's algorithm family.
+    pub fn shared(&self) -> SharedSettings {
+        if self.algorithm.on_policy() {
+            let v = &self.vmpo;
+            SharedSettings {
+                learning_rate: v.learning_rate,
+                adam_eps: v.adam_eps,
+                dual_learning_rate: v.dual_learning_rate,
+                init_temperature: v.init_temperature,
+                init_alpha_mean: v.init_alpha_mean,
+                init_alpha_cov: v.init_alpha_cov,
+                init_alpha_categorical: v.init_alpha_categorical,
+                beta_mean: v.beta_mean,
+                beta_cov: v.beta_cov,
+                beta_categorical: v.beta_categorical,
+                batch_size: v.batch_size,
+                sequence_length: v.unroll_length,
+                discount: v.discount,
+                target_update_period: v.target_update_period,
+                grad_clip_norm: v.grad_clip_norm,
+            }
+        } else {
+            let m = &self.mpo;
+            SharedSettings {
+                learning_rate: m.learning_rate,
+                adam_eps: m.adam_eps,
+                dual_learning_rate: m.dual_learning_rate,
+                init_temperature: m.init_temperature,
+                init_alpha_mean: m.init_alpha_mean,
+                init_alpha_cov: m.init_alpha_cov,
+                init_alpha_categorical: m.init_alpha_categorical,
+                beta_mean: m.beta_mean,
+                beta_cov: m.beta_cov,
+                beta_categorical: m.beta_categorical,
+                batch_size: m.batch_size,
+                sequence_length: m.retrace_length,
+                discount: m.discount,
+                target_update_period: m.target_update_period,
+                grad_clip_norm: m.grad_clip_norm,
+            }
+        }
+    }
+}
