@@ -1,10 +1,10 @@
 """The gRPC front end: the only server module that imports grpc.
 
-Everything here is translation: protobuf <-> numpy/spec dicts, Session calls, and one
-exception -> status mapping (`_to_status`). All RPCs run on one asyncio event loop;
-Step and StepStream run inline (no thread hop) because that is the latency-critical
-path, while Make runs Task constructors in a worker thread so a slow simulator load
-does not stall other sessions.
+Everything here is plumbing: requests to Session calls, results to messages (built by
+wire.py), and one exception -> status mapping (`_to_status`). All RPCs run on one
+asyncio event loop; Step and StepStream run inline (no thread hop) because that is the
+latency-critical path, while Make runs Task constructors in a worker thread so a slow
+simulator load does not stall other sessions.
 """
 
 from __future__ import annotations
@@ -13,25 +13,19 @@ import asyncio
 import functools
 import json
 import logging
-import sys
 import time
 from typing import Any, AsyncIterator, Awaitable, Callable
 
 import grpc
-import numpy as np
 from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 
 import env_server
-from env_server import spaces
+from env_server import wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
 from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted
 from env_server.registry import Registry
-from env_server.session import Autoreset, ResetResult, Session, StepResult, make_session
-from env_server.task import Objective
-
-if sys.byteorder != "little":
-    raise ImportError("env_server sends native numpy buffers as little-endian tensors; this host is big-endian")
+from env_server.session import Autoreset, Session, make_session
 
 log = logging.getLogger(__name__)
 
@@ -47,15 +41,6 @@ CAPABILITIES = (
     "episode_returns",
 )
 
-_DTYPE_TO_PB = {
-    "float32": pb.DTYPE_FLOAT32,
-    "float64": pb.DTYPE_FLOAT64,
-    "int32": pb.DTYPE_INT32,
-    "int64": pb.DTYPE_INT64,
-    "uint8": pb.DTYPE_UINT8,
-    "bool": pb.DTYPE_BOOL,
-}
-_PB_TO_DTYPE = {v: k for k, v in _DTYPE_TO_PB.items()}
 _AUTORESET = {
     pb.AUTORESET_MODE_UNSPECIFIED: Autoreset.SAME_STEP,
     pb.AUTORESET_MODE_SAME_STEP: Autoreset.SAME_STEP,
@@ -87,76 +72,6 @@ def _rpc(method: Callable[..., Awaitable[Any]]) -> Callable[..., Awaitable[Any]]
     return wrapper
 
 
-# ---------------------------------------------------------------------- proto <-> numpy
-def _tensor(arr: np.ndarray) -> pb.Tensor:
-    return pb.Tensor(dtype=_DTYPE_TO_PB[arr.dtype.name], shape=arr.shape, data=arr.tobytes())
-
-
-def _named(leaves: list[tuple[Any, np.ndarray]]) -> list[pb.NamedTensor]:
-    return [pb.NamedTensor(name=getattr(leaf, "name", leaf), tensor=_tensor(arr)) for leaf, arr in leaves]
-
-
-def space_to_pb(spec: dict[str, Any]) -> pb.Space:
-    """A spaces.space_to_spec dict as a protobuf Space."""
-    if "dict" in spec:
-        return pb.Space(dict=pb.DictSpace(entries=[pb.NamedSpace(name=k, space=space_to_pb(s)) for k, s in spec["dict"]]))
-    if "discrete" in spec:
-        return pb.Space(discrete=pb.DiscreteSpace(n=spec["discrete"]["n"], start=spec["discrete"]["start"]))
-    box = spec["box"]
-    return pb.Space(
-        box=pb.BoxSpace(dtype=_DTYPE_TO_PB[box["dtype"]], shape=box["shape"], low=box["low"], high=box["high"])
-    )
-
-
-def _objectives_pb(objectives: tuple[Objective, ...]) -> list[pb.ObjectiveSpec]:
-    return [pb.ObjectiveSpec(name=o.name, description=o.description, min=o.min, max=o.max) for o in objectives]
-
-
-def _spec_pb(session: Session) -> pb.EnvSpec:
-    spec = session.spec
-    return pb.EnvSpec(
-        env_id=spec.env_id,
-        num_envs=spec.num_envs,
-        observation_space=space_to_pb(spaces.space_to_spec(spec.observation_space)),
-        action_space=space_to_pb(spaces.space_to_spec(spec.action_space)),
-        objectives=_objectives_pb(spec.objectives),
-        max_episode_steps=spec.max_episode_steps,
-        autoreset_mode=int(spec.autoreset),
-        discount=spec.discount,
-        info_keys=spec.info_keys,
-    )
-
-
-def _reset_pb(result: ResetResult) -> pb.ResetResponse:
-    return pb.ResetResponse(observation=_named(result.observation), info=_named(result.info))
-
-
-def _step_pb(result: StepResult) -> pb.StepResponse:
-    response = pb.StepResponse(
-        observation=_named(result.observation),
-        reward=_tensor(result.reward),
-        terminated=result.terminated.tolist(),
-        truncated=result.truncated.tolist(),
-    )
-    if result.info:
-        response.info.extend(_named(result.info))
-    if result.episodes:
-        response.episodes.extend(
-            pb.EpisodeEnd(
-                env_index=e.env_index,
-                episode_return=e.episode_return.tolist(),
-                discounted_return=e.discounted_return.tolist(),
-                length=e.length,
-                terminated=e.terminated,
-                truncated=e.truncated,
-            )
-            for e in result.episodes
-        )
-        if result.final_observation:
-            response.final_observation.extend(_named(result.final_observation))
-    return response
-
-
 # ---------------------------------------------------------------------- service
 class EnvService(env_pb2_grpc.EnvServiceServicer):
     """mo_env.v1.EnvService over a Registry and a table of leased Sessions."""
@@ -167,6 +82,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         self.max_message_bytes = max_message_bytes
         self.lease_seconds = lease_seconds
         self.sessions: dict[str, Session] = {}
+        self._encoders: dict[str, wire.StepEncoder] = {}  # per session, for its Step responses
         self._making = 0  # Make calls between the limit check and registration
 
     # -------------------------------------------------------------- sessions
@@ -178,6 +94,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
 
     def close_session(self, session_id: str, reason: str) -> None:
         session = self.sessions.pop(session_id, None)
+        self._encoders.pop(session_id, None)
         if session is not None:
             session.close()
             log.info("closed session %s (%s): %s; %d open", session_id, session.env_id, reason, len(self.sessions))
@@ -210,7 +127,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     async def ListEnvs(self, request: pb.ListEnvsRequest, context: Any) -> pb.ListEnvsResponse:
         return pb.ListEnvsResponse(
             envs=[
-                pb.EnvInfo(env_id=e.env_id, description=e.description, objectives=_objectives_pb(e.objectives))
+                pb.EnvInfo(env_id=e.env_id, description=e.description, objectives=wire.objectives_pb(e.objectives))
                 for e in self.registry.entries()
             ]
         )
@@ -251,10 +168,11 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         finally:
             self._making -= 1
         self.sessions[session.id] = session
+        self._encoders[session.id] = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
         log.info(
             "made session %s: %s x%d; %d open", session.id, session.env_id, session.num_envs, len(self.sessions)
         )
-        return pb.MakeResponse(session_id=session.id, spec=_spec_pb(session), lease_seconds=self.lease_seconds)
+        return pb.MakeResponse(session_id=session.id, spec=wire.spec_pb(session), lease_seconds=self.lease_seconds)
 
     def _build(self, env_id: str, num_envs: int, kwargs: dict[str, Any], **options: Any) -> Session:
         return make_session(self.registry.resolve(env_id), num_envs, kwargs, **options)
@@ -262,26 +180,27 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     @_rpc
     async def Reset(self, request: pb.ResetRequest, context: Any) -> pb.ResetResponse:
         session = self._session(request.session_id)
-        return _reset_pb(session.reset(request.env_indices, request.seeds))
+        return wire.reset_pb(session.reset(request.env_indices, request.seeds))
 
-    async def Step(self, request: pb.StepRequest, context: grpc.aio.ServicerContext) -> pb.StepResponse:
+    async def Step(self, request: pb.StepRequest, context: grpc.aio.ServicerContext) -> bytes:
         try:
             return self._step(request)
         except Exception as exc:
             code, message = _to_status(exc)
             await context.abort(code, message)
 
-    def _step(self, request: pb.StepRequest) -> pb.StepResponse:
+    def _step(self, request: pb.StepRequest) -> bytes:
+        """One Step, as a serialized StepResponse (see _method_handlers)."""
         session = self.sessions.get(request.session_id)
         if session is None:
             self._session(request.session_id)
         action = request.action
-        dtype = _PB_TO_DTYPE.get(action.dtype) or pb.DType.Name(action.dtype)
-        return _step_pb(session.step(dtype, action.shape, action.data))
+        dtype = wire.PB_TO_DTYPE.get(action.dtype) or pb.DType.Name(action.dtype)
+        return self._encoders[session.id].encode(session.step(dtype, action.shape, action.data))
 
     async def StepStream(
         self, request_iterator: AsyncIterator[pb.StepRequest], context: grpc.aio.ServicerContext
-    ) -> AsyncIterator[pb.StepResponse]:
+    ) -> AsyncIterator[bytes]:
         """A stream owns the sessions it steps: when it ends they are closed.
 
         grpc.aio cannot tell a client's half-close from a cancelled or dropped stream
@@ -336,6 +255,31 @@ def _parse_kwargs(kwargs_json: str) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------- serving
+# Step and StepStream return wire.StepEncoder bytes: building and then serializing a
+# StepResponse per Step cost more than the rest of the server's per-Step work.
+_ENCODED_RESPONSES = ("Step", "StepStream")
+_HANDLER_KINDS = {  # (client streaming, server streaming) -> handler factory
+    (False, False): grpc.unary_unary_rpc_method_handler,
+    (False, True): grpc.unary_stream_rpc_method_handler,
+    (True, False): grpc.stream_unary_rpc_method_handler,
+    (True, True): grpc.stream_stream_rpc_method_handler,
+}
+
+
+def _method_handlers(service: EnvService) -> dict[str, grpc.RpcMethodHandler]:
+    """What env_pb2_grpc.add_EnvServiceServicer_to_server registers, except _ENCODED_RESPONSES."""
+    handlers = {}
+    for method in pb.DESCRIPTOR.services_by_name["EnvService"].methods:
+        request = getattr(pb, method.input_type.name)
+        response = getattr(pb, method.output_type.name)
+        handlers[method.name] = _HANDLER_KINDS[method.client_streaming, method.server_streaming](
+            getattr(service, method.name),
+            request_deserializer=request.FromString,
+            response_serializer=None if method.name in _ENCODED_RESPONSES else response.SerializeToString,
+        )
+    return handlers
+
+
 def _bind_address(host: str, port: int) -> str:
     return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
 
@@ -360,7 +304,9 @@ async def serve(
             ("grpc.max_send_message_length", max_message_bytes),
         ]
     )
-    env_pb2_grpc.add_EnvServiceServicer_to_server(service, server)
+    handlers = _method_handlers(service)
+    server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE_NAME, handlers),))
+    server.add_registered_method_handlers(SERVICE_NAME, handlers)
     health_servicer = health.aio.HealthServicer()
     health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
     bound = server.add_insecure_port(_bind_address(host, port))

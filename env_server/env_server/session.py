@@ -253,7 +253,7 @@ class Session:
     def step(self, dtype: str, shape: Sequence[int], data: bytes) -> StepResult:
         """Validate one action per instance (wire pieces) and step every instance."""
         self.last_used = time.monotonic()
-        if self._needs_reset.any():
+        if np.count_nonzero(self._needs_reset):  # not .any() (here and below): no Python wrapper
             raise FailedPrecondition(f"session {self.id}: call Reset before Step{self._failure}")
         actions = self.validator.decode(dtype, shape, data)
         return self.step_actions(actions)
@@ -320,13 +320,13 @@ class Session:
             self._ep_ret += reward
             self._ep_disc += self._disc_pow[:, None] * reward
             self._disc_pow *= self._discount
-        if self._max_steps:
+        if self._max_steps and np.maximum.reduce(self._ep_len) >= self._max_steps:
             truncated |= ~terminated & (self._ep_len >= self._max_steps)
 
         episodes: list[EpisodeEnd] = []
         finals: list[tuple[spaces.Leaf, np.ndarray]] = []
         done = terminated | truncated
-        if done.any():
+        if np.count_nonzero(done):
             ended = np.flatnonzero(done)
             for i in ended.tolist():
                 episodes.append(
