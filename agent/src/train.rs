@@ -338,6 +338,7 @@ pub async fn evaluate(client: &EnvClient, cfg: &TrainConfig, policy: ActorPolicy
     let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
     // Seeds disjoint from the training sessions'.
     let mut env = client.make(&make_options(cfg, num_envs, cfg.seed + 1_000_000)).await?;
+    env.use_stream();
     let map = ActionMap::new(&env.spec().action_space)?;
     let o = env.spec().observation_space.flat_dim();
     let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
