@@ -11,65 +11,54 @@ use tch::{Device, Kind, Tensor};
 /// match; holding this keeps the tests of this binary from interleaving.
 static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-#[test]
-fn round_trip_gives_identical_outputs_and_next_step() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
-    tch::set_num_threads(1);
-    let mut learner = continuous_learner();
+/// Three steps, a checkpoint in `dir`, and the restored learner, checked to act alike.
+fn trained_and_restored(mut learner: Learner, dir: &std::path::Path) -> (Learner, Learner) {
     for seed in 0..3 {
         let batch = random_batch(&learner, seed);
         learner.step(&batch).unwrap();
     }
+    let path = dir.join("ckpt");
+    learner.save_checkpoint(&path).unwrap();
+    let restored = Learner::load_checkpoint(&path, Device::Cpu).unwrap();
+    assert_eq!(restored.step_count(), 3);
+    assert_eq!(restored.policy_snapshot(), learner.policy_snapshot());
+    let obs = Tensor::randn([7, 3], (Kind::Float, Device::Cpu));
+    assert!(restored.act(&obs, true).actions.equal(&learner.act(&obs, true).actions));
+    (learner, restored)
+}
+
+/// One step of each on the same batch and random stream must report the same.
+fn step_alike(a: &mut Learner, b: &mut Learner, batch: &agent::algo::SnippetBatch, seed: i64) -> Vec<f32> {
+    tch::manual_seed(seed);
+    let x = a.step(batch).unwrap();
+    tch::manual_seed(seed);
+    let y = b.step(batch).unwrap();
+    assert_eq!(
+        (x.step, &x.critic_loss, &x.temperature, &x.alpha, &x.policy_kl),
+        (y.step, &y.critic_loss, &y.temperature, &y.alpha, &y.policy_kl)
+    );
+    x.critic_loss
+}
+
+#[test]
+fn round_trip_gives_identical_outputs_and_next_step() {
+    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("ckpt");
-    learner.save_checkpoint(&path).unwrap();
+    let (mut learner, mut restored) = trained_and_restored(continuous_learner(), dir.path());
     // Saving again replaces the directory atomically and leaves no temporaries.
-    learner.save_checkpoint(&path).unwrap();
+    learner.save_checkpoint(&dir.path().join("ckpt")).unwrap();
     let names: Vec<String> = std::fs::read_dir(dir.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert_eq!(names, vec!["ckpt".to_string()]);
 
-    let mut restored = Learner::load_checkpoint(&path, Device::Cpu).unwrap();
-    assert_eq!(restored.step_count(), 3);
-    let obs = Tensor::randn([7, 3], (Kind::Float, Device::Cpu));
-    assert!(
-        restored
-            .act(&obs, true)
-            .actions
-            .equal(&learner.act(&obs, true).actions)
-    );
-    assert_eq!(restored.policy_snapshot(), learner.policy_snapshot());
-
     let batch = random_batch(&learner, 99);
-    tch::manual_seed(1234);
-    let a = learner.step(&batch).unwrap();
-    tch::manual_seed(1234);
-    let b = restored.step(&batch).unwrap();
-    assert_eq!(
-        (
-            a.step,
-            &a.critic_loss,
-            &a.temperature,
-            &a.alpha,
-            &a.policy_kl
-        ),
-        (
-            b.step,
-            &b.critic_loss,
-            &b.temperature,
-            &b.alpha,
-            &b.policy_kl
-        )
-    );
+    step_alike(&mut learner, &mut restored, &batch, 1234);
     assert_eq!(restored.policy_snapshot(), learner.policy_snapshot());
-    // Step 4 is a target-update step (period 4): the copied targets agree too.
-    tch::manual_seed(77);
-    let a = learner.step(&batch).unwrap();
-    tch::manual_seed(77);
-    let b = restored.step(&batch).unwrap();
-    assert_eq!(a.critic_loss, b.critic_loss);
+    // Step 5 comes after a target update (period 4): the copied targets agree too.
+    step_alike(&mut learner, &mut restored, &batch, 77);
 }
 
 #[test]
@@ -86,23 +75,10 @@ fn missing_checkpoint_names_the_path() {
 fn movmpo_with_the_mocap_torso_round_trips() {
     let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
     tch::set_num_threads(1);
-    let mut learner = movmpo_mocap_learner();
-    for seed in 0..3 {
-        let batch = random_batch(&learner, seed);
-        learner.step(&batch).unwrap();
-    }
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("ckpt");
-    learner.save_checkpoint(&path).unwrap();
-    let mut restored = Learner::load_checkpoint(&path, Device::Cpu).unwrap();
-    assert_eq!(restored.policy_snapshot(), learner.policy_snapshot());
-    let obs = Tensor::randn([7, 3], (Kind::Float, Device::Cpu));
-    assert!(restored.act(&obs, true).actions.equal(&learner.act(&obs, true).actions), "latent mean is deterministic");
+    // The deterministic action uses the latent's mean, so the restored one matches.
+    let (mut learner, mut restored) = trained_and_restored(movmpo_mocap_learner(), dir.path());
     let batch = random_batch(&learner, 99);
-    tch::manual_seed(77);
-    let a = learner.step(&batch).unwrap();
-    tch::manual_seed(77);
-    let b = restored.step(&batch).unwrap();
-    assert_eq!((a.step, &a.critic_loss, &a.temperature, &a.policy_kl), (b.step, &b.critic_loss, &b.temperature, &b.policy_kl));
-    assert_eq!(a.critic_loss.len(), 2, "one value head per objective");
+    let critic_loss = step_alike(&mut learner, &mut restored, &batch, 77);
+    assert_eq!(critic_loss.len(), 2, "one value head per objective");
 }
