@@ -116,17 +116,15 @@ fn gaussian_log_likelihood() {
     );
 }
 
-#[test]
-fn decoupled_kl_terms_and_multiplier_losses() {
-    let g = golden("mstep_gaussian");
+/// The decoupled Gaussian M-step on golden file `g`'s policies and multipliers, for
+/// `actions [M, B, D]` and `weights [M, B]`: KLs, both losses, and their gradients.
+#[track_caller]
+fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
     let online = GaussianParams {
         mean: tensor(&g["online_mean"]).set_requires_grad(true),
         std: tensor(&g["online_std"]).set_requires_grad(true),
     };
-    let target = GaussianParams {
-        mean: tensor(&g["target_mean"]),
-        std: tensor(&g["target_std"]),
-    };
+    let target = GaussianParams { mean: tensor(&g["target_mean"]), std: tensor(&g["target_std"]) };
     let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
     let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
     let region = TrustRegion {
@@ -135,56 +133,28 @@ fn decoupled_kl_terms_and_multiplier_losses() {
         beta_mean: scalar(&g["beta_mean"]),
         beta_cov: scalar(&g["beta_cov"]),
     };
-    let out = gaussian_mstep(
-        &online,
-        &target,
-        &tensor(&g["actions"]),
-        &tensor(&g["weights"]),
-        &region,
-    );
-    assert_close_scalar(
-        out.kl_mean.double_value(&[]),
-        scalar(&g["kl_mean"]),
-        "KL_mu",
-    );
-    assert_close_scalar(
-        out.kl_cov.double_value(&[]),
-        scalar(&g["kl_cov"]),
-        "KL_Sigma",
-    );
-    assert_close_scalar(
-        out.policy_loss.double_value(&[]),
-        scalar(&g["policy_loss"]),
-        "policy loss",
-    );
-    assert_close_scalar(
-        out.alpha_loss.double_value(&[]),
-        scalar(&g["alpha_loss"]),
-        "alpha loss",
-    );
+    let out = gaussian_mstep(&online, &target, actions, weights, &region);
+    assert_close_scalar(out.kl_mean.double_value(&[]), scalar(&g["kl_mean"]), "KL_mu");
+    assert_close_scalar(out.kl_cov.double_value(&[]), scalar(&g["kl_cov"]), "KL_Sigma");
+    assert_close_scalar(out.policy_loss.double_value(&[]), scalar(&g["policy_loss"]), "policy loss");
+    assert_close_scalar(out.alpha_loss.double_value(&[]), scalar(&g["alpha_loss"]), "alpha loss");
     (out.policy_loss + out.alpha_loss).backward();
     assert_close_scalar(
         alpha_mean.grad().double_value(&[]),
         scalar(&g["grad_alpha_mean"]),
         "d/d alpha_mu = beta_mu - KL_mu",
     );
-    assert_close_scalar(
-        alpha_cov.grad().double_value(&[]),
-        scalar(&g["grad_alpha_cov"]),
-        "d/d alpha_Sigma",
-    );
+    assert_close_scalar(alpha_cov.grad().double_value(&[]), scalar(&g["grad_alpha_cov"]), "d/d alpha_Sigma");
     // Stop-gradients: alpha enters the policy loss only as a constant, the KL enters
     // the alpha loss only as a constant, so the policy gradients match PyTorch's.
-    assert_close(
-        &online.mean.grad(),
-        &tensor(&g["grad_online_mean"]),
-        "d/d mu",
-    );
-    assert_close(
-        &online.std.grad(),
-        &tensor(&g["grad_online_std"]),
-        "d/d sigma",
-    );
+    assert_close(&online.mean.grad(), &tensor(&g["grad_online_mean"]), "d/d mu");
+    assert_close(&online.std.grad(), &tensor(&g["grad_online_std"]), "d/d sigma");
+}
+
+#[test]
+fn decoupled_kl_terms_and_multiplier_losses() {
+    let g = golden("mstep_gaussian");
+    check_gaussian_mstep(&g, &tensor(&g["actions"]), &tensor(&g["weights"]));
 }
 
 #[test]
@@ -283,31 +253,9 @@ fn vmpo_unroll_targets_bootstrap_and_cut_like_the_reference() {
 #[test]
 fn vmpo_policy_fit_and_multiplier_losses() {
     let g = golden("vmpo_mstep");
-    let online = GaussianParams {
-        mean: tensor(&g["online_mean"]).set_requires_grad(true),
-        std: tensor(&g["online_std"]).set_requires_grad(true),
-    };
-    let target = GaussianParams { mean: tensor(&g["target_mean"]), std: tensor(&g["target_std"]) };
-    let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
-    let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
-    let region = TrustRegion {
-        alpha_mean: &alpha_mean,
-        alpha_cov: &alpha_cov,
-        beta_mean: scalar(&g["beta_mean"]),
-        beta_cov: scalar(&g["beta_cov"]),
-    };
-    // One action per state ([1, N, D]); batch weights scaled by N because the M-step
-    // averages over states (how movmpo.rs calls it).
+    // Eq. 25 through the shared M-step: one action per state ([1, N, D]) and the batch
+    // weights scaled by N, because the M-step averages over states (as movmpo.rs does).
     let w = vector(&g["weights"]);
     let n = w.size()[0] as f64;
-    let out = gaussian_mstep(&online, &target, &tensor(&g["actions"]).unsqueeze(0), &(w * n).unsqueeze(0), &region);
-    assert_close_scalar(out.kl_mean.double_value(&[]), scalar(&g["kl_mean"]), "KL_mu");
-    assert_close_scalar(out.kl_cov.double_value(&[]), scalar(&g["kl_cov"]), "KL_Sigma");
-    assert_close_scalar(out.policy_loss.double_value(&[]), scalar(&g["policy_loss"]), "eq. 25 loss");
-    assert_close_scalar(out.alpha_loss.double_value(&[]), scalar(&g["alpha_loss"]), "multiplier loss");
-    (out.policy_loss + out.alpha_loss).backward();
-    assert_close_scalar(alpha_mean.grad().double_value(&[]), scalar(&g["grad_alpha_mean"]), "d/d alpha_mu");
-    assert_close_scalar(alpha_cov.grad().double_value(&[]), scalar(&g["grad_alpha_cov"]), "d/d alpha_Sigma");
-    assert_close(&online.mean.grad(), &tensor(&g["grad_online_mean"]), "d/d mu");
-    assert_close(&online.std.grad(), &tensor(&g["grad_online_std"]), "d/d sigma");
+    check_gaussian_mstep(&g, &tensor(&g["actions"]).unsqueeze(0), &(w * n).unsqueeze(0));
 }
