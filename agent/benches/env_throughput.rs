@@ -1,14 +1,17 @@
 //! Env-server throughput: in-process Python vs. through the server from Rust.
 //!
-//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000 --batch-sizes 1,8,32 --repeats 3]`
+//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000 --batch-sizes 1,8,32 --repeats 3 --workers N]`
 //!
 //! For each B in {1, 8, 32}, in one run on the same machine:
 //! - in-process: `python -m env_server.bench_inprocess --raw` steps B Task instances
 //!   in a Python loop (what a local Python user gets);
 //! - remote: the Rust client steps one session of B instances on a local env_server,
-//!   by unary `Step` and by `StepStream`, with actions generated up front.
+//!   by unary `Step`, by `StepStream`, and (B >= 2) by `StepStream` with the server
+//!   splitting the batch between itself and min(B - 1, N) worker processes
+//!   (`MakeOptions::num_workers`; N defaults to the CPU count - 1), with actions
+//!   generated up front.
 //!
-//! The three run back to back `--repeats` times, and each figure printed is the median
+//! The modes run back to back `--repeats` times, and each figure printed is the median
 //! over the repeats: a burst of other load on the machine then spoils one repeat, not
 //! the result. Ratios and overheads are taken within a repeat, then their median.
 //!
@@ -76,8 +79,9 @@ fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
     Figures { env_steps_per_s: f("env_steps_per_s"), p50_ms: f("call_p50_ms"), p99_ms: f("call_p99_ms"), reset_ms: f64::NAN }
 }
 
-async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, stream: bool) -> Figures {
-    let mut session = client.make(&MakeOptions { seed: Some(0), ..MakeOptions::new(env, num_envs) }).await.unwrap();
+async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, stream: bool, workers: usize) -> Figures {
+    let options = MakeOptions { seed: Some(0), num_workers: workers, ..MakeOptions::new(env, num_envs) };
+    let mut session = client.make(&options).await.unwrap();
     if stream {
         session.use_stream();
     }
@@ -119,6 +123,10 @@ async fn main() {
     let env = arg("--env", "humanoid-run");
     let base_calls: usize = arg("--calls", "2000").parse().expect("--calls is a number");
     let repeats: usize = arg("--repeats", "3").parse().expect("--repeats is a number");
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // The server process steps a share too: one process per CPU in all.
+    let max_workers: usize =
+        arg("--workers", &(cpus.max(2) - 1).to_string()).parse().expect("--workers is a number");
     assert!(repeats >= 1, "--repeats must be at least 1");
     let batch_sizes: Vec<usize> = arg("--batch-sizes", "1,8,32")
         .split(',')
@@ -128,34 +136,50 @@ async fn main() {
     let client = EnvClient::connect(server.address()).await.expect("connect");
     println!(
         "env_throughput: {env}, in-process Python (raw Task loop) vs. Rust client -> env_server on 127.0.0.1; \
-         medians of {repeats} repeats"
+         medians of {repeats} repeats; `workers` = StepStream with the B instances split between \
+         the server process and min(B - 1, {max_workers}) worker processes"
     );
+    let mode = |name: &str| format!("{:>12} {:>6} {:>9} {:>9}", format!("{name} st/s"), "ratio", "p50 ms", "p99 ms");
     println!(
-        "{:>3} {:>7} | {:>12} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9} | {:>12} {:>6} {:>9} {:>9} | {:>9}",
-        "B", "calls", "inproc st/s", "p50 ms", "p99 ms", "unary st/s", "ratio", "p50 ms", "p99 ms", "stream st/s",
-        "ratio", "p50 ms", "p99 ms", "reset ms"
+        "{:>3} {:>7} | {:>12} {:>9} {:>9} | {} | {} | {} | {:>9}",
+        "B", "calls", "inproc st/s", "p50 ms", "p99 ms", mode("unary"), mode("stream"), mode("workers"), "reset ms"
     );
     let mut summary = Vec::new();
     for num_envs in batch_sizes {
         // Same env-step budget per B (at least 100 calls).
         let calls = (base_calls / num_envs).max(100);
-        let (mut locals, mut unaries, mut streams) = (Vec::new(), Vec::new(), Vec::new());
+        let workers = max_workers.min(num_envs - 1);
+        let (mut locals, mut unaries, mut streams, mut pooled) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for _ in 0..repeats {
             locals.push(in_process(&env, num_envs, calls));
-            unaries.push(remote(&client, &env, num_envs, calls, false).await);
-            streams.push(remote(&client, &env, num_envs, calls, true).await);
+            unaries.push(remote(&client, &env, num_envs, calls, false, 0).await);
+            streams.push(remote(&client, &env, num_envs, calls, true, 0).await);
+            if workers >= 1 {
+                pooled.push(remote(&client, &env, num_envs, calls, true, workers).await);
+            }
         }
         let within = |remote: &[Figures], f: fn(&Figures, &Figures) -> f64| {
             median(remote.iter().zip(&locals).map(|(r, l)| f(r, l)))
         };
         let ratio = |r: &Figures, l: &Figures| r.env_steps_per_s / l.env_steps_per_s;
         let overhead = |r: &Figures, l: &Figures| r.p50_ms - l.p50_ms;
-        let (ru, rs) = (within(&unaries, ratio), within(&streams, ratio));
-        let (local, unary, stream) = (median_figures(&locals), median_figures(&unaries), median_figures(&streams));
+        let column = |runs: &[Figures]| {
+            if runs.is_empty() {
+                return format!("{:>12} {:>6} {:>9} {:>9}", "-", "-", "-", "-");
+            }
+            let f = median_figures(runs);
+            format!("{:>12.0} {:>6.2} {:>9.3} {:>9.3}", f.env_steps_per_s, within(runs, ratio), f.p50_ms, f.p99_ms)
+        };
+        let local = median_figures(&locals);
         println!(
-            "{num_envs:>3} {calls:>7} | {:>12.0} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3} | {:>12.0} {:>6.2} {:>9.3} {:>9.3} | {:>9.2}",
-            local.env_steps_per_s, local.p50_ms, local.p99_ms, unary.env_steps_per_s, ru, unary.p50_ms, unary.p99_ms,
-            stream.env_steps_per_s, rs, stream.p50_ms, stream.p99_ms, unary.reset_ms
+            "{num_envs:>3} {calls:>7} | {:>12.0} {:>9.3} {:>9.3} | {} | {} | {} | {:>9.2}",
+            local.env_steps_per_s,
+            local.p50_ms,
+            local.p99_ms,
+            column(&unaries),
+            column(&streams),
+            column(&pooled),
+            median_figures(&unaries).reset_ms
         );
         if num_envs == 1 {
             summary.push(format!(
@@ -164,7 +188,14 @@ async fn main() {
                 within(&streams, overhead)
             ));
         } else {
-            summary.push(format!("B={num_envs} ratio to in-process: unary {ru:.2}, stream {rs:.2} (target >= 0.90)"));
+            let pooled_ratio =
+                if pooled.is_empty() { "-".to_string() } else { format!("{:.2}", within(&pooled, ratio)) };
+            summary.push(format!(
+                "B={num_envs} ratio to in-process: unary {:.2}, stream {:.2}, stream + {workers} workers {pooled_ratio} \
+                 (target >= 0.90)",
+                within(&unaries, ratio),
+                within(&streams, ratio)
+            ));
         }
     }
     server.stop().await.expect("stop env_server");

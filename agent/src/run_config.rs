@@ -40,6 +40,12 @@ pub struct EnvConfig {
     /// Actor tasks, each with its own session. With one actor a run is reproducible.
     #[serde(default = "default_num_actors")]
     pub num_actors: usize,
+    /// Worker processes that step each actor's B instances in parallel with the server
+    /// process (0 = none; at most B - 1). Worth it when one instance's step costs more
+    /// than a pipe round trip (MuJoCo tasks) and there are cores to spare; results do
+    /// not change.
+    #[serde(default)]
+    pub workers: usize,
 }
 
 fn default_num_envs() -> usize {
@@ -140,6 +146,13 @@ impl TrainConfig {
         if self.env.num_actors == 0 {
             return invalid("env.num_actors", ">= 1", "0".into());
         }
+        if self.env.workers >= self.env.num_envs {
+            return invalid(
+                "env.workers",
+                &format!("at most env.num_envs - 1 = {}", self.env.num_envs - 1),
+                self.env.workers.to_string(),
+            );
+        }
         let r = &self.run;
         if !(r.learner_steps_per_env_step.is_finite() && r.learner_steps_per_env_step > 0.0) {
             return invalid("run.learner_steps_per_env_step", "> 0", r.learner_steps_per_env_step.to_string());
@@ -190,6 +203,9 @@ mod tests {
         std::fs::write(&path, "[env]\nid = \"dst\"\nnum_envs = 0\n").unwrap();
         let err = TrainConfig::load(&path).unwrap_err().to_string();
         assert_eq!(err, "env.num_envs must be >= 1, got 0");
+        std::fs::write(&path, "[env]\nid = \"dst\"\nnum_envs = 4\nworkers = 4\n").unwrap();
+        let err = TrainConfig::load(&path).unwrap_err().to_string();
+        assert_eq!(err, "env.workers must be at most env.num_envs - 1 = 3, got 4");
         std::fs::write(&path, "[env]\nid = \"dst\"\nnum_env = 3\n").unwrap();
         let err = TrainConfig::load(&path).unwrap_err().to_string();
         assert!(err.contains("num_env"), "{err}");

@@ -195,7 +195,10 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
         let ctx = ActorContext {
             id: a,
             client: clients[a % clients.len()].clone(),
-            make: make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64),
+            make: MakeOptions {
+                num_workers: cfg.env.workers,
+                ..make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64)
+            },
             policy,
             params: params_rx.clone(),
             layout,

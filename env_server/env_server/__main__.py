@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 
@@ -23,6 +24,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--max-sessions", type=int, default=64, help="open sessions allowed at once (default 64)")
     p.add_argument("--max-message-mb", type=float, default=64, help="largest request/response in MiB (default 64)")
     p.add_argument("--session-lease", type=float, default=120.0, help="seconds before an unused session is closed (default 120)")
+    p.add_argument(
+        "--max-workers",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="worker processes one session may ask for (MakeRequest.num_workers; default: one per CPU)",
+    )
     p.add_argument("--list", action="store_true", help="print every env id with its objectives and exit")
     p.add_argument("--log-level", default="INFO", help="logging level for stderr (default INFO)")
     return p
@@ -60,10 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         print_list(registry)
         return 0
-    if args.max_sessions < 1 or args.max_message_mb <= 0 or args.session_lease <= 0:
+    if args.max_sessions < 1 or args.max_message_mb <= 0 or args.session_lease <= 0 or args.max_workers < 0:
         print(
-            "env-server: expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0; got "
-            f"{args.max_sessions}, {args.max_message_mb}, {args.session_lease}",
+            "env-server: expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0, "
+            f"--max-workers >= 0; got {args.max_sessions}, {args.max_message_mb}, {args.session_lease}, "
+            f"{args.max_workers}",
             file=sys.stderr,
         )
         return 2
@@ -82,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
             max_sessions=args.max_sessions,
             max_message_bytes=int(args.max_message_mb * 1024 * 1024),
             lease_seconds=args.session_lease,
+            max_workers=args.max_workers,
             stop=stop,
         )
 

@@ -171,9 +171,11 @@ class RemoteVectorEnv:
         autoreset: Autoreset | str = Autoreset.SAME_STEP,
         discount: float | None = None,
         info_keys: Sequence[str] = (),
+        num_workers: int = 0,
         max_message_mb: float = 64,
         **kwargs: Any,
     ) -> None:
+        """num_workers >= 1 asks the server to step the instances in that many processes."""
         self._channel = _Channel(address, max_message_mb)
         if isinstance(autoreset, str):
             autoreset = Autoreset[autoreset.upper()]
@@ -183,6 +185,7 @@ class RemoteVectorEnv:
             kwargs_json=json.dumps(kwargs) if kwargs else "",
             autoreset_mode=int(autoreset),
             info_keys=list(info_keys),
+            num_workers=num_workers,
         )
         if seed is not None:
             request.seed = seed

@@ -13,6 +13,7 @@ import asyncio
 import functools
 import json
 import logging
+import os
 import time
 from typing import Any, AsyncIterator, Awaitable, Callable
 
@@ -30,6 +31,8 @@ from env_server.session import Autoreset, Session, make_session
 log = logging.getLogger(__name__)
 
 PROTOCOL_VERSION = "1.0.0"
+#: Worker processes one session may ask for (MakeRequest.num_workers): one per CPU.
+DEFAULT_MAX_WORKERS = os.cpu_count() or 1
 SERVICE_NAME = "mo_env.v1.EnvService"
 CAPABILITIES = (
     "step_stream",
@@ -39,6 +42,7 @@ CAPABILITIES = (
     "dict_observations",
     "info_keys",
     "episode_returns",
+    "instance_workers",
 )
 
 _AUTORESET = {
@@ -76,9 +80,12 @@ def _rpc(method: Callable[..., Awaitable[Any]]) -> Callable[..., Awaitable[Any]]
 class EnvService(env_pb2_grpc.EnvServiceServicer):
     """mo_env.v1.EnvService over a Registry and a table of leased Sessions."""
 
-    def __init__(self, registry: Registry, *, max_sessions: int, max_message_bytes: int, lease_seconds: float) -> None:
+    def __init__(
+        self, registry: Registry, *, max_sessions: int, max_message_bytes: int, lease_seconds: float, max_workers: int
+    ) -> None:
         self.registry = registry
         self.max_sessions = max_sessions
+        self.max_workers = max_workers
         self.max_message_bytes = max_message_bytes
         self.lease_seconds = lease_seconds
         self.sessions: dict[str, Session] = {}
@@ -136,6 +143,11 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     async def Make(self, request: pb.MakeRequest, context: Any) -> pb.MakeResponse:
         if request.num_envs < 1:
             raise InvalidArgument(f"num_envs: expected >= 1, got {request.num_envs}")
+        if request.num_workers > self.max_workers:
+            raise InvalidArgument(
+                f"num_workers: expected at most {self.max_workers} (this server's --max-workers), "
+                f"got {request.num_workers}"
+            )
         kwargs = _parse_kwargs(request.kwargs_json)
         autoreset = _AUTORESET.get(request.autoreset_mode)
         if autoreset is None:
@@ -158,6 +170,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
                 autoreset=autoreset,
                 discount=request.discount if request.HasField("discount") else None,
                 info_keys=tuple(request.info_keys),
+                num_workers=request.num_workers,
             )
             future = loop.run_in_executor(None, build)
             try:
@@ -292,11 +305,16 @@ async def serve(
     max_sessions: int = 64,
     max_message_bytes: int = 64 * 1024 * 1024,
     lease_seconds: float = 120.0,
+    max_workers: int = DEFAULT_MAX_WORKERS,
     stop: asyncio.Event | None = None,
 ) -> None:
     """Serve until `stop` is set; prints `LISTENING <host>:<port>` once bound."""
     service = EnvService(
-        registry, max_sessions=max_sessions, max_message_bytes=max_message_bytes, lease_seconds=lease_seconds
+        registry,
+        max_sessions=max_sessions,
+        max_message_bytes=max_message_bytes,
+        lease_seconds=lease_seconds,
+        max_workers=max_workers,
     )
     server = grpc.aio.server(
         options=[
@@ -317,8 +335,8 @@ async def serve(
         await health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
     print(f"LISTENING {_bind_address(host, bound)}", flush=True)
     log.info(
-        "serving %s on %s (max sessions %d, max message %d bytes, lease %g s)",
-        SERVICE_NAME, _bind_address(host, bound), max_sessions, max_message_bytes, lease_seconds,
+        "serving %s on %s (max sessions %d, max message %d bytes, lease %g s, max workers %d)",
+        SERVICE_NAME, _bind_address(host, bound), max_sessions, max_message_bytes, lease_seconds, max_workers,
     )
     reaper = asyncio.create_task(service.reap())
     stop = stop or asyncio.Event()

@@ -1,5 +1,8 @@
 """A Session: B Task instances stepped as one batch, with autoreset and episode accounting.
 
+Where the instances run (in this process, or spread over worker processes) is
+instances.py's business; a Session hands them one batch of steps and resets per call.
+
 This is the whole server minus gRPC: validation, seeding, autoreset, time limits and
 server-side episode returns live here, so bench_inprocess measures exactly what the
 server does per Step except the transport. No grpc imports; errors are errors.py types.
@@ -12,21 +15,27 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import logging
 import math
 import time
 import uuid
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import gymnasium
 import numpy as np
 
 from env_server import spaces
 from env_server.errors import EnvServerError, FailedPrecondition, Internal, InvalidArgument, SimulatorError
+from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, TaskInfo, WorkerInstances
 from env_server.registry import EnvEntry, construct
 from env_server.task import Objective, Task
 
 log = logging.getLogger(__name__)
+
+# np.count_nonzero minus its Python wrapper: the hot path tests bool buffers with it
+# because ndarray.any() and np.count_nonzero each add a Python-level call.
+count_nonzero = np.core.multiarray.count_nonzero
 
 DEFAULT_DISCOUNT = 0.99
 
@@ -102,7 +111,7 @@ class Session:
     def __init__(
         self,
         env_id: str,
-        tasks: Sequence[Task],
+        instances: Instances,
         *,
         seed: int | None = None,
         autoreset: Autoreset = Autoreset.SAME_STEP,
@@ -112,9 +121,9 @@ class Session:
     ) -> None:
         self.id = session_id or uuid.uuid4().hex
         self.env_id = env_id
-        self._tasks = list(tasks)
-        first = self._tasks[0]
-        b = len(self._tasks)
+        self._instances = instances
+        first = instances.info
+        b = instances.num_envs
         self.objectives: tuple[Objective, ...] = tuple(first.objectives)
         self._k = len(self.objectives)
         max_steps = first.max_episode_steps or 0
@@ -127,7 +136,7 @@ class Session:
             max_episode_steps=int(max_steps),
             autoreset=autoreset,
             discount=float(discount),
-            info_keys=tuple(first.info_keys),
+            info_keys=first.info_keys,
         )
         self._max_steps = int(max_steps)
         self._discount = float(discount)
@@ -137,7 +146,7 @@ class Session:
         self._discrete = self.validator.discrete
         if not self._discrete:
             self._actions = np.zeros(self.validator.shape, self.validator.dtype)
-            self._action_rows = list(self._actions)
+            self._all_rows = list(enumerate(self._actions))  # (index, action view) per instance
         self.leaves = spaces.leaves(first.observation_space)
         self._single_leaf = len(self.leaves) == 1 and not self.leaves[0].path
         self._obs = [np.zeros((b, *leaf.shape), leaf.dtype) for leaf in self.leaves]
@@ -150,6 +159,9 @@ class Session:
         self._ep_ret = np.zeros((b, self._k), np.float64)
         self._ep_disc = np.zeros((b, self._k), np.float64)
         self._disc_pow = np.ones(b, np.float64)
+        self._disc_col = self._disc_pow[:, None]  # a view, so the hot path skips the indexing
+        self._disc_reward = np.zeros((b, self._k), np.float64)
+        self._done = np.zeros(b, np.bool_)
         self._info: dict[str, np.ndarray] = {}
         self._seeded = np.zeros(b, np.bool_)  # has had its first reset
         self._needs_reset = np.ones(b, np.bool_)
@@ -161,12 +173,14 @@ class Session:
     # ------------------------------------------------------------------ helpers
     @property
     def num_envs(self) -> int:
-        return len(self._tasks)
+        return self._instances.num_envs
 
     @property
     def tasks(self) -> tuple[Task, ...]:
-        """The B Task instances (read-only view, for benchmarks and tests)."""
-        return tuple(self._tasks)
+        """The B Task instances of an in-process session (for benchmarks and tests)."""
+        if not isinstance(self._instances, LocalInstances):
+            raise TypeError(f"session {self.id} runs its instances in worker processes")
+        return self._instances.tasks
 
     def _write_obs(self, i: int, obs: Any, bufs: Sequence[np.ndarray]) -> None:
         if self._single_leaf:
@@ -178,27 +192,32 @@ class Session:
                 value = value[key]
             buf[i] = value
 
-    def _simulator_error(self, what: str, i: int, exc: BaseException) -> SimulatorError:
-        self._needs_reset[:] = True
-        self._failure = f" (a simulator error in {what} of instance {i} left the session needing a full Reset)"
-        log.error("env %s session %s instance %d: %s raised", self.env_id, self.id, i, what, exc_info=exc)
-        return SimulatorError(f"env {self.env_id} session {self.id} instance {i}: {type(exc).__name__}: {exc}")
-
-    def _reset_instance(self, i: int, seed: int | None) -> tuple[Any, dict[str, Any]]:
+    def _run(self, steps: Sequence[tuple[int, Any]], resets: Sequence[tuple[int, int | None]]) -> Outcomes:
+        """One batch on the instances; the reset ones begin a new episode."""
         try:
-            obs, info = self._tasks[i].reset(seed=seed)
-        except EnvServerError:
-            raise
-        except Exception as exc:
-            raise self._simulator_error("reset", i, exc) from exc
-        self._seeded[i] = True
-        self._needs_reset[i] = False
-        self._ended[i] = False
-        self._ep_len[i] = 0
-        self._ep_ret[i] = 0.0
-        self._ep_disc[i] = 0.0
-        self._disc_pow[i] = 1.0
-        return obs, info
+            out = self._instances.run(steps, resets)
+        except InstanceFailure as failure:
+            self._needs_reset[:] = True
+            self._failure = (
+                f" (a simulator error in {failure.what} of instance {failure.index} left the session "
+                "needing a full Reset)"
+            )
+            log.error(
+                "env %s session %s instance %d: %s raised %s",
+                self.env_id, self.id, failure.index, failure.what, failure.error, exc_info=failure.__cause__,
+            )
+            raise SimulatorError(
+                f"env {self.env_id} session {self.id} instance {failure.index}: {failure.error}"
+            ) from failure
+        for i, _ in resets:
+            self._seeded[i] = True
+            self._needs_reset[i] = False
+            self._ended[i] = False
+            self._ep_len[i] = 0
+            self._ep_ret[i] = 0.0
+            self._ep_disc[i] = 0.0
+            self._disc_pow[i] = 1.0
+        return out
 
     def _collect_info(self, i: int, info: Mapping[str, Any]) -> None:
         for key in self._info_keys:
@@ -231,11 +250,10 @@ class Session:
         else:
             raise InvalidArgument(f"seeds: expected 0, 1 or {n} values (one per reset instance), got {len(seeds)}")
         bufs = [np.zeros((n, *leaf.shape), leaf.dtype) for leaf in self.leaves]
-        infos = []
-        for pos, (i, seed) in enumerate(zip(indices, per)):
-            obs, info = self._reset_instance(i, seed)
-            self._write_obs(pos, obs, bufs)
-            infos.append(info)
+        outcomes = self._run((), list(zip(indices, per))).resets
+        infos = [out.info for out in outcomes]
+        for pos, out in enumerate(outcomes):
+            self._write_obs(pos, out.observation, bufs)
         if not self._needs_reset.any():
             self._failure = ""
         info_out = []
@@ -253,7 +271,7 @@ class Session:
     def step(self, dtype: str, shape: Sequence[int], data: bytes) -> StepResult:
         """Validate one action per instance (wire pieces) and step every instance."""
         self.last_used = time.monotonic()
-        if np.count_nonzero(self._needs_reset):  # not .any() (here and below): no Python wrapper
+        if count_nonzero(self._needs_reset):
             raise FailedPrecondition(f"session {self.id}: call Reset before Step{self._failure}")
         actions = self.validator.decode(dtype, shape, data)
         return self.step_actions(actions)
@@ -268,40 +286,38 @@ class Session:
                 f"env_indices={ended} before Step (autoreset mode DISABLED)"
             )
         if self._discrete:
-            rows: Sequence[Any] = actions.tolist()
+            rows: list[tuple[int, Any]] = list(enumerate(actions.tolist()))
         else:
             np.copyto(self._actions, actions)
-            rows = self._action_rows
+            rows = self._all_rows
         reward, terminated, truncated, live = self._reward, self._terminated, self._truncated, self._live
         k = self._k
         for buf in self._info.values():
             buf.fill(0)
         next_step_reset = autoreset is Autoreset.NEXT_STEP and self._ended.any()
+        resets: list[tuple[int, int | None]] = []
         if next_step_reset:
+            # Instances whose episode ended last Step reset now instead of stepping.
             np.logical_not(self._ended, out=live)
-        for i, task in enumerate(self._tasks):
-            if next_step_reset and not live[i]:
-                obs, info = self._reset_instance(i, None)
-                self._write_obs(i, obs, self._obs)
-                reward[i] = 0.0
-                terminated[i] = truncated[i] = False
-                if self._info_keys:
-                    self._collect_info(i, info)
-                continue
-            try:
-                out = task.step(rows[i])
-            except EnvServerError:
-                raise
-            except Exception as exc:
-                raise self._simulator_error("step", i, exc) from exc
+            resets = [(i, None) for i in np.flatnonzero(self._ended).tolist()]
+            rows = [row for row in rows if live[row[0]]]
+        outcomes = self._run(rows, resets)
+        for (i, _), reset in zip(resets, outcomes.resets):
+            self._write_obs(i, reset.observation, self._obs)
+            reward[i] = 0.0
+            terminated[i] = truncated[i] = False
+            if self._info_keys:
+                self._collect_info(i, reset.info)
+        for (i, _), out in zip(rows, outcomes.steps):
             r = out.reward
             if getattr(r, "shape", None) != (k,):
                 r = np.asarray(r, np.float32)
                 if r.shape != (k,):
+                    task = self._instances.info.task_class
                     self._needs_reset[:] = True
-                    self._failure = f" (task {type(task).__name__} returned a malformed reward)"
+                    self._failure = f" (task {task} returned a malformed reward)"
                     raise Internal(
-                        f"env {self.env_id} session {self.id} instance {i}: task {type(task).__name__} "
+                        f"env {self.env_id} session {self.id} instance {i}: task {task} "
                         f"returned a reward of shape {list(r.shape)}, expected [{k}] (one entry per "
                         f"objective: {[o.name for o in self.objectives]})"
                     )
@@ -316,17 +332,20 @@ class Session:
             self._account(live)
             terminated &= live
         else:
+            # In place and into preallocated buffers: right after the simulator step the
+            # caches are cold and every temporary costs microseconds.
             self._ep_len += 1
             self._ep_ret += reward
-            self._ep_disc += self._disc_pow[:, None] * reward
+            np.multiply(self._disc_col, reward, out=self._disc_reward)
+            self._ep_disc += self._disc_reward
             self._disc_pow *= self._discount
         if self._max_steps and np.maximum.reduce(self._ep_len) >= self._max_steps:
             truncated |= ~terminated & (self._ep_len >= self._max_steps)
 
         episodes: list[EpisodeEnd] = []
         finals: list[tuple[spaces.Leaf, np.ndarray]] = []
-        done = terminated | truncated
-        if np.count_nonzero(done):
+        done = np.logical_or(terminated, truncated, out=self._done)
+        if count_nonzero(done):
             ended = np.flatnonzero(done)
             for i in ended.tolist():
                 episodes.append(
@@ -341,9 +360,9 @@ class Session:
                 )
             if autoreset is Autoreset.SAME_STEP:
                 finals = [(leaf, buf[ended]) for leaf, buf in zip(self.leaves, self._obs)]
-                for i in ended.tolist():
-                    obs, _ = self._reset_instance(i, None)
-                    self._write_obs(i, obs, self._obs)
+                ended_list = ended.tolist()
+                for i, out in zip(ended_list, self._run((), [(i, None) for i in ended_list]).resets):
+                    self._write_obs(i, out.observation, self._obs)
             else:
                 self._ended[ended] = True
         info = [(key, self._info[key]) for key in self._info_keys if key in self._info]
@@ -361,11 +380,7 @@ class Session:
         if self.closed:
             return
         self.closed = True
-        for i, task in enumerate(self._tasks):
-            try:
-                task.close()
-            except Exception:
-                log.exception("env %s session %s instance %d: close raised", self.env_id, self.id, i)
+        self._instances.close()
 
 
 def make_session(
@@ -378,10 +393,13 @@ def make_session(
     discount: float | None = None,
     info_keys: Sequence[str] = (),
     session_id: str | None = None,
+    num_workers: int = 0,
 ) -> Session:
     """Validate the request, construct num_envs Tasks and wrap them in a Session.
 
-    May take seconds for heavy simulators; the server runs it in a worker thread.
+    num_workers = 0 keeps the Tasks in this process; N >= 1 splits them into N + 1
+    shares, one kept here and one per worker process, stepped in parallel. May take seconds for heavy simulators;
+    the server runs it in a thread.
     """
     if num_envs < 1:
         raise InvalidArgument(f"num_envs: expected >= 1, got {num_envs}")
@@ -391,22 +409,25 @@ def make_session(
     if isinstance(entry.factory, type):
         # Reject unknown info keys before paying for a simulator load when the class declares them.
         _check_info_keys(entry.env_id, tuple(entry.factory.info_keys), info_keys)
-    tasks: list[Task] = []
+    if not 0 <= num_workers < num_envs:
+        raise InvalidArgument(
+            f"num_workers: expected 0 (no worker processes) to num_envs - 1 = {num_envs - 1} "
+            f"(the server steps one share itself), got {num_workers}"
+        )
+    build = functools.partial(construct, entry, kwargs)
+    if num_workers:
+        try:
+            instances: Instances = WorkerInstances(build, num_envs, num_workers)
+        except InstanceFailure as failure:
+            log.error("env %s: constructor raised", entry.env_id, exc_info=failure.__cause__)
+            raise _constructor_error(entry.env_id, failure.error) from failure
+    else:
+        instances = _local_instances(entry.env_id, build, num_envs)
     try:
-        for _ in range(num_envs):
-            try:
-                task = construct(entry, kwargs)
-            except EnvServerError:
-                raise
-            except Exception as exc:
-                log.error("env %s: constructor raised", entry.env_id, exc_info=exc)
-                raise SimulatorError(f"env {entry.env_id}: constructor raised {type(exc).__name__}: {exc}") from exc
-            tasks.append(task)
-            if len(tasks) == 1:
-                _check_task(entry.env_id, task, info_keys)
+        _check_task(entry.env_id, instances.info, info_keys)
         return Session(
             entry.env_id,
-            tasks,
+            instances,
             seed=seed,
             autoreset=autoreset,
             discount=discount,
@@ -414,11 +435,29 @@ def make_session(
             session_id=session_id,
         )
     except BaseException:
-        for task in tasks:
+        instances.close()
+        raise
+
+
+def _constructor_error(env_id: str, error: str) -> SimulatorError:
+    return SimulatorError(f"env {env_id}: constructor raised {error}")
+
+
+def _local_instances(env_id: str, build: Callable[[], Task], num_envs: int) -> LocalInstances:
+    tasks: list[Task] = []
+    try:
+        for _ in range(num_envs):
             try:
-                task.close()
-            except Exception:
-                log.exception("env %s: close after a failed Make raised", entry.env_id)
+                tasks.append(build())
+            except EnvServerError:
+                raise
+            except Exception as exc:
+                log.error("env %s: constructor raised", env_id, exc_info=exc)
+                raise _constructor_error(env_id, f"{type(exc).__name__}: {exc}") from exc
+        return LocalInstances(tasks)
+    except BaseException:
+        if tasks:
+            LocalInstances(tasks).close()
         raise
 
 
@@ -428,7 +467,7 @@ def _check_info_keys(env_id: str, available: tuple[str, ...], info_keys: Sequenc
         raise InvalidArgument(f"info_keys: env '{env_id}' cannot report {unknown}; available: {list(available)}")
 
 
-def _check_task(env_id: str, task: Task, info_keys: Sequence[str]) -> None:
+def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:
     _check_info_keys(env_id, tuple(task.info_keys), info_keys)
     names = [o.name for o in task.objectives]
     if not names or len(set(names)) != len(names):

@@ -123,6 +123,7 @@ class ActionValidator:
         self.space = space
         self.num_envs = num_envs
         self.dtype = leaf_dtype(space)
+        self.dtype_name = self.dtype.name  # dtype.name is a Python property costing microseconds
         self.discrete = isinstance(space, gymnasium.spaces.Discrete)
         item_shape = () if self.discrete else tuple(int(d) for d in space.shape)
         self.shape = (num_envs, *item_shape)
@@ -148,10 +149,9 @@ class ActionValidator:
 
         Raises InvalidArgument naming the field, the expectation and what arrived.
         """
-        if dtype != self.dtype.name:
-            raise InvalidArgument(f"action: expected dtype {self.dtype.name}, got {dtype}")
-        shape = tuple(int(d) for d in shape)
-        if shape != self.shape:
+        if dtype != self.dtype_name:
+            raise InvalidArgument(f"action: expected dtype {self.dtype_name}, got {dtype}")
+        if tuple(shape) != self.shape:
             raise InvalidArgument(
                 f"action: expected shape {list(self.shape)} (num_envs={self.num_envs}, "
                 f"action space {self.space}), got {list(shape)}"

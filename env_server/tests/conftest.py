@@ -15,10 +15,12 @@ import threading
 from typing import Iterator
 
 import grpc
+import numpy as np
 import pytest
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
+from env_server.client import to_tensor
 
 PLUGINS = pathlib.Path(__file__).parent / "plugins"
 
@@ -71,6 +73,10 @@ def stub(address: str) -> Iterator[env_pb2_grpc.EnvServiceStub]:
 
 def make(stub: env_pb2_grpc.EnvServiceStub, env_id: str, num_envs: int = 1, **fields) -> pb.MakeResponse:
     return stub.Make(pb.MakeRequest(env_id=env_id, num_envs=num_envs, **fields))
+
+
+def step(stub: env_pb2_grpc.EnvServiceStub, session_id: str, arr: np.ndarray) -> pb.StepResponse:
+    return stub.Step(pb.StepRequest(session_id=session_id, action=to_tensor(arr)))
 
 
 def rpc_error(call, *args, **kwargs) -> grpc.RpcError:

@@ -8,14 +8,9 @@ import grpc
 import numpy as np
 import pytest
 
-from conftest import make, rpc_error, running_server
+from conftest import make, rpc_error, running_server, step
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
-from env_server.client import to_tensor
-
-
-def step(stub, session_id: str, arr: np.ndarray) -> pb.StepResponse:
-    return stub.Step(pb.StepRequest(session_id=session_id, action=to_tensor(arr)))
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ import pytest
 
 from env_server import wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.instances import LocalInstances
 from env_server.session import Autoreset, Session, StepResult
 from env_server.task import Objective, StepOutcome, Task
 
@@ -69,7 +70,8 @@ def reference(result: StepResult) -> pb.StepResponse:
 @pytest.mark.parametrize("info_keys", [(), ("energy",)])
 @pytest.mark.parametrize("num_envs", [1, 3])
 def test_encoded_step_equals_protobuf(autoreset: Autoreset, info_keys: tuple[str, ...], num_envs: int) -> None:
-    session = Session("counter", [Counter(i) for i in range(num_envs)], autoreset=autoreset, info_keys=info_keys)
+    tasks = LocalInstances([Counter(i) for i in range(num_envs)])
+    session = Session("counter", tasks, autoreset=autoreset, info_keys=info_keys)
     session.reset()
     encoder = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
     ended = 0
@@ -93,7 +95,7 @@ def test_single_leaf_observation_has_no_name() -> None:
         def _obs(self) -> np.ndarray:
             return self.rng.normal(size=4)
 
-    session = Session("flat", [Flat(), Flat()])
+    session = Session("flat", LocalInstances([Flat(), Flat()]))
     session.reset()
     result = session.step_actions(np.zeros((2, 2), np.float32))
     encoded = wire.StepEncoder(session.leaves, 2, 3).encode(result)

@@ -135,6 +135,32 @@ async fn humanoid_run_rewards_follow_their_definitions_for_b1_and_b8() {
 }
 
 #[tokio::test]
+async fn humanoid_run_in_server_worker_processes_steps_exactly_as_without() {
+    // More workers than this machine may have CPUs: correctness does not depend on it.
+    let h = Harness::start(&["--max-workers", "3"]).await;
+    let mut runs = Vec::new();
+    for num_workers in [0, 1, 3] {
+        let options = MakeOptions { seed: Some(5), num_workers, ..MakeOptions::new("humanoid-run", 4) };
+        let mut env = h.client.make(&options).await.unwrap();
+        env.use_stream();
+        let mut seen = env.reset(&[], &[]).await.unwrap().observation.to_flat_f32();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        for _ in 0..30 {
+            let action = random_action(&env.spec().action_space, 4, &mut rng);
+            let step = env.step(&action).await.unwrap();
+            seen.extend(step.observation.to_flat_f32());
+            seen.extend(&step.reward);
+        }
+        env.close().await.unwrap();
+        runs.push(seen);
+    }
+    // Bit for bit: the same simulator states, whichever process stepped them.
+    assert_eq!(runs[0], runs[1], "1 worker");
+    assert_eq!(runs[0], runs[2], "3 workers");
+    h.server.stop().await.unwrap();
+}
+
+#[tokio::test]
 async fn server_errors_arrive_typed_with_the_servers_message() {
     let h = Harness::start(&["--max-sessions", "2"]).await;
     let err = h.client.make(&MakeOptions::new("no-such-env", 1)).await.unwrap_err();

@@ -160,6 +160,9 @@ pub struct MakeOptions {
     pub discount: Option<f64>,
     /// Info keys to receive with every step.
     pub info_keys: Vec<String>,
+    /// Worker processes that step shares of the instances in parallel with the server
+    /// process (0 = none; at most `num_envs - 1`).
+    pub num_workers: usize,
 }
 
 impl MakeOptions {
@@ -173,6 +176,7 @@ impl MakeOptions {
             autoreset_mode: AutoresetMode::SameStep,
             discount: None,
             info_keys: Vec::new(),
+            num_workers: 0,
         }
     }
 }

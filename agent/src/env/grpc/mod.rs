@@ -199,6 +199,11 @@ impl EnvClient {
             autoreset_mode: autoreset_to_proto(options.autoreset_mode) as i32,
             discount: options.discount,
             info_keys: options.info_keys.clone(),
+            num_workers: i32::try_from(options.num_workers).map_err(|_| EnvError::BadInput {
+                field: "num_workers".into(),
+                expected: "at most 2^31-1".into(),
+                got: options.num_workers.to_string(),
+            })?,
         };
         let r = self.call("Make", request, |mut c, r| async move { c.make(r).await }).await?;
         let spec = spec_from_proto(r.spec.ok_or_else(|| missing("MakeResponse.spec"))?)?;

@@ -168,7 +168,7 @@ class ListEnvsResponse(_message.Message):
     def __init__(self, envs: _Optional[_Iterable[_Union[EnvInfo, _Mapping]]] = ...) -> None: ...
 
 class MakeRequest(_message.Message):
-    __slots__ = ("env_id", "num_envs", "kwargs_json", "seed", "autoreset_mode", "discount", "info_keys")
+    __slots__ = ("env_id", "num_envs", "kwargs_json", "seed", "autoreset_mode", "discount", "info_keys", "num_workers")
     ENV_ID_FIELD_NUMBER: _ClassVar[int]
     NUM_ENVS_FIELD_NUMBER: _ClassVar[int]
     KWARGS_JSON_FIELD_NUMBER: _ClassVar[int]
@@ -176,6 +176,7 @@ class MakeRequest(_message.Message):
     AUTORESET_MODE_FIELD_NUMBER: _ClassVar[int]
     DISCOUNT_FIELD_NUMBER: _ClassVar[int]
     INFO_KEYS_FIELD_NUMBER: _ClassVar[int]
+    NUM_WORKERS_FIELD_NUMBER: _ClassVar[int]
     env_id: str
     num_envs: int
     kwargs_json: str
@@ -183,7 +184,8 @@ class MakeRequest(_message.Message):
     autoreset_mode: AutoresetMode
     discount: float
     info_keys: _containers.RepeatedScalarFieldContainer[str]
-    def __init__(self, env_id: _Optional[str] = ..., num_envs: _Optional[int] = ..., kwargs_json: _Optional[str] = ..., seed: _Optional[int] = ..., autoreset_mode: _Optional[_Union[AutoresetMode, str]] = ..., discount: _Optional[float] = ..., info_keys: _Optional[_Iterable[str]] = ...) -> None: ...
+    num_workers: int
+    def __init__(self, env_id: _Optional[str] = ..., num_envs: _Optional[int] = ..., kwargs_json: _Optional[str] = ..., seed: _Optional[int] = ..., autoreset_mode: _Optional[_Union[AutoresetMode, str]] = ..., discount: _Optional[float] = ..., info_keys: _Optional[_Iterable[str]] = ..., num_workers: _Optional[int] = ...) -> None: ...
 
 class MakeResponse(_message.Message):
     __slots__ = ("session_id", "spec", "lease_seconds")
