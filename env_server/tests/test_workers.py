@@ -98,3 +98,13 @@ def test_simulator_exception_in_a_worker_over_the_wire() -> None:
         stub.Reset(pb.ResetRequest(session_id=faulty))
         assert list(step(stub, faulty, np.array([2, 0, 2])).terminated) == [False, False, False]
         stub.Close(pb.CloseRequest(session_id=faulty))
+
+
+def test_workers_exit_when_the_server_goes_away() -> None:
+    session = make_session(Registry().resolve("dst"), 2, {}, num_workers=1)
+    process = session._instances._workers[0].process
+    # What a killed server leaves behind: the worker's pipe closes without a goodbye.
+    session._instances._workers[0].conn.close()
+    process.join(timeout=10)
+    assert process.exitcode == 0
+    session.close()  # and closing what is left does not fail
