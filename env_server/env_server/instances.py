@@ -105,8 +105,9 @@ class Instances(abc.ABC):
     def run(self, steps: Sequence[tuple[int, Any]], resets: Sequence[tuple[int, int | None]]) -> Outcomes:
         """Step each (index, action) and reset each (index, seed); an index appears at most once.
 
-        Raises InstanceFailure for the lowest failing index (instances after it in its
-        share may not have run), or an EnvServerError a Task raised itself.
+        Raises InstanceFailure naming the first instance to fail in the lowest failing
+        share (later ones in that share may not have run), or an EnvServerError a Task
+        raised itself. Either way the Session then needs a full Reset.
         """
 
     @abc.abstractmethod
