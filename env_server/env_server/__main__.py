@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import os
 import signal
 import sys
 
+from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry, RegistryError
 from env_server.task import Objective
 
@@ -27,7 +27,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--max-workers",
         type=int,
-        default=os.cpu_count() or 1,
+        default=DEFAULT_MAX_WORKERS,
         help="worker processes one session may ask for (MakeRequest.num_workers; default: one per CPU)",
     )
     p.add_argument("--list", action="store_true", help="print every env id with its objectives and exit")

@@ -20,6 +20,7 @@ import dataclasses
 import logging
 import multiprocessing
 import multiprocessing.connection
+import os
 from typing import Any, Callable, Mapping, Sequence
 
 import gymnasium
@@ -31,6 +32,8 @@ log = logging.getLogger(__name__)
 
 #: How long a closing worker gets to close its Tasks before it is killed.
 CLOSE_TIMEOUT_S = 5.0
+#: Worker processes one session may ask for unless the server says otherwise: one per CPU.
+DEFAULT_MAX_WORKERS = os.cpu_count() or 1
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,6 @@ import asyncio
 import functools
 import json
 import logging
-import os
 import time
 from typing import Any, AsyncIterator, Awaitable, Callable
 
@@ -25,14 +24,13 @@ from env_server import wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
 from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted
+from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
 from env_server.session import Autoreset, Session, make_session
 
 log = logging.getLogger(__name__)
 
 PROTOCOL_VERSION = "1.0.0"
-#: Worker processes one session may ask for (MakeRequest.num_workers): one per CPU.
-DEFAULT_MAX_WORKERS = os.cpu_count() or 1
 SERVICE_NAME = "mo_env.v1.EnvService"
 CAPABILITIES = (
     "step_stream",
