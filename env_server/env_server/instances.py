@@ -1,4 +1,5 @@
-"""Where a session's B Task instances live: in the server process, or in worker processes.
+"""Where a session's B Task instances live (the server process, or worker processes), and
+how they are built and checked (`build_instances`).
 
 A Session (session.py) owns validation, autoreset and episode accounting; what it asks
 of its instances is one batch at a time: step these instances with these actions, reset
@@ -17,15 +18,18 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 import logging
 import multiprocessing
 import multiprocessing.connection
 import os
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import gymnasium
 
-from env_server.errors import EnvServerError
+from env_server import spaces
+from env_server.errors import EnvServerError, Internal, InvalidArgument, SimulatorError
+from env_server.registry import EnvEntry, construct
 from env_server.task import Objective, StepOutcome, Task
 
 log = logging.getLogger(__name__)
@@ -138,6 +142,23 @@ def _run_tasks(
     return out
 
 
+def _build_tasks(build: Callable[[], Task], indices: Iterable[int]) -> dict[int, Task]:
+    """One Task per index; a constructor's exception becomes an InstanceFailure ("construct")."""
+    tasks: dict[int, Task] = {}
+    try:
+        for i in indices:
+            try:
+                tasks[i] = build()
+            except EnvServerError:
+                raise
+            except Exception as exc:
+                raise InstanceFailure.of(i, "construct", exc) from exc
+    except BaseException:
+        _close_tasks(tasks)
+        raise
+    return tasks
+
+
 def _close_tasks(tasks: Mapping[int, Task]) -> None:
     for i, task in tasks.items():
         try:
@@ -176,16 +197,16 @@ def _worker_main(conn: multiprocessing.connection.Connection, build: Callable[[]
     """A worker process: construct its share of Tasks, then serve batches until the pipe closes."""
     tasks: dict[int, Task] = {}
     try:
-        for i in indices:
-            try:
-                tasks[i] = build()
-            except EnvServerError as exc:
-                conn.send(_Failed(exc))
-                return
-            except Exception as exc:
-                log.error("instance %d: the constructor raised", i, exc_info=exc)
-                conn.send(_Failed(InstanceFailure.of(i, "construct", exc)))
-                return
+        try:
+            tasks = _build_tasks(build, indices)
+        except EnvServerError as exc:
+            conn.send(_Failed(exc))
+            return
+        except InstanceFailure as exc:
+            # The traceback lives here only: log it before the failure crosses the pipe.
+            log.error("instance %d: the constructor raised", exc.index, exc_info=exc.__cause__)
+            conn.send(_Failed(exc))
+            return
         conn.send(TaskInfo.of(tasks[indices[0]]))
         while True:
             try:
@@ -255,13 +276,7 @@ class WorkerInstances(Instances):
                 child.close()
                 self._workers.append(_Worker(process, parent, first, count))
                 first += count
-            for i in range(counts[0]):  # while the workers build theirs
-                try:
-                    self._local[i] = build()
-                except EnvServerError:
-                    raise
-                except Exception as exc:
-                    raise InstanceFailure.of(i, "construct", exc) from exc
+            self._local = _build_tasks(build, range(counts[0]))  # while the workers build theirs
             for worker in self._workers:
                 self._receive(worker, "construct")
         except BaseException:
@@ -342,3 +357,55 @@ class WorkerInstances(Instances):
             worker.conn.close()
         self._workers = []
         self._local = {}
+
+
+# ---------------------------------------------------------------------- construction
+def build_instances(
+    entry: EnvEntry, kwargs: Mapping[str, Any], num_envs: int, num_workers: int, info_keys: Sequence[str]
+) -> Instances:
+    """Construct num_envs instances of `entry` (in num_workers worker processes too) and check them.
+
+    Errors name the field: a bad num_workers or info key is InvalidArgument, a raising
+    constructor a SimulatorError naming the env. Nothing is left running on failure.
+    """
+    if isinstance(entry.factory, type):
+        # Reject unknown info keys before paying for a simulator load when the class declares them.
+        _check_info_keys(entry.env_id, tuple(entry.factory.info_keys), info_keys)
+    if not 0 <= num_workers < num_envs:
+        raise InvalidArgument(
+            f"num_workers: expected 0 (no worker processes) to num_envs - 1 = {num_envs - 1} "
+            f"(the server steps one share itself), got {num_workers}"
+        )
+    build = functools.partial(construct, entry, kwargs)
+    try:
+        if num_workers:
+            instances: Instances = WorkerInstances(build, num_envs, num_workers)
+        else:
+            instances = LocalInstances(list(_build_tasks(build, range(num_envs)).values()))
+    except InstanceFailure as failure:
+        log.error("env %s: constructor raised", entry.env_id, exc_info=failure.__cause__)
+        raise SimulatorError(f"env {entry.env_id}: constructor raised {failure.error}") from failure
+    try:
+        _check_task(entry.env_id, instances.info, info_keys)
+    except BaseException:
+        instances.close()
+        raise
+    return instances
+
+
+def _check_info_keys(env_id: str, available: tuple[str, ...], info_keys: Sequence[str]) -> None:
+    unknown = [key for key in info_keys if key not in available]
+    if unknown:
+        raise InvalidArgument(f"info_keys: env '{env_id}' cannot report {unknown}; available: {list(available)}")
+
+
+def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:
+    _check_info_keys(env_id, task.info_keys, info_keys)
+    names = [o.name for o in task.objectives]
+    if not names or len(set(names)) != len(names):
+        raise Internal(f"env '{env_id}': objectives must be non-empty with unique names, got {names}")
+    try:
+        spaces.space_to_spec(task.observation_space)
+        spaces.leaf_dtype(task.action_space)
+    except TypeError as exc:
+        raise InvalidArgument(f"env_id: env '{env_id}' cannot be served: {exc}") from exc

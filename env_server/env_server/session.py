@@ -15,20 +15,19 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import functools
 import logging
 import math
 import time
 import uuid
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import gymnasium
 import numpy as np
 
 from env_server import spaces
-from env_server.errors import EnvServerError, FailedPrecondition, Internal, InvalidArgument, SimulatorError
-from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, TaskInfo, WorkerInstances
-from env_server.registry import EnvEntry, construct
+from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError
+from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, build_instances
+from env_server.registry import EnvEntry
 from env_server.task import Objective, Task
 
 log = logging.getLogger(__name__)
@@ -398,33 +397,16 @@ def make_session(
     """Validate the request, construct num_envs Tasks and wrap them in a Session.
 
     num_workers = 0 keeps the Tasks in this process; N >= 1 splits them into N + 1
-    shares, one kept here and one per worker process, stepped in parallel. May take seconds for heavy simulators;
-    the server runs it in a thread.
+    shares, one kept here and one per worker process, stepped in parallel. May take
+    seconds for heavy simulators; the server runs it in a thread.
     """
     if num_envs < 1:
         raise InvalidArgument(f"num_envs: expected >= 1, got {num_envs}")
     discount = DEFAULT_DISCOUNT if discount is None else float(discount)
     if not (math.isfinite(discount) and 0.0 <= discount <= 1.0):
         raise InvalidArgument(f"discount: expected 0 <= discount <= 1, got {discount}")
-    if isinstance(entry.factory, type):
-        # Reject unknown info keys before paying for a simulator load when the class declares them.
-        _check_info_keys(entry.env_id, tuple(entry.factory.info_keys), info_keys)
-    if not 0 <= num_workers < num_envs:
-        raise InvalidArgument(
-            f"num_workers: expected 0 (no worker processes) to num_envs - 1 = {num_envs - 1} "
-            f"(the server steps one share itself), got {num_workers}"
-        )
-    build = functools.partial(construct, entry, kwargs)
-    if num_workers:
-        try:
-            instances: Instances = WorkerInstances(build, num_envs, num_workers)
-        except InstanceFailure as failure:
-            log.error("env %s: constructor raised", entry.env_id, exc_info=failure.__cause__)
-            raise _constructor_error(entry.env_id, failure.error) from failure
-    else:
-        instances = _local_instances(entry.env_id, build, num_envs)
+    instances = build_instances(entry, kwargs, num_envs, num_workers, info_keys)
     try:
-        _check_task(entry.env_id, instances.info, info_keys)
         return Session(
             entry.env_id,
             instances,
@@ -437,43 +419,3 @@ def make_session(
     except BaseException:
         instances.close()
         raise
-
-
-def _constructor_error(env_id: str, error: str) -> SimulatorError:
-    return SimulatorError(f"env {env_id}: constructor raised {error}")
-
-
-def _local_instances(env_id: str, build: Callable[[], Task], num_envs: int) -> LocalInstances:
-    tasks: list[Task] = []
-    try:
-        for _ in range(num_envs):
-            try:
-                tasks.append(build())
-            except EnvServerError:
-                raise
-            except Exception as exc:
-                log.error("env %s: constructor raised", env_id, exc_info=exc)
-                raise _constructor_error(env_id, f"{type(exc).__name__}: {exc}") from exc
-        return LocalInstances(tasks)
-    except BaseException:
-        if tasks:
-            LocalInstances(tasks).close()
-        raise
-
-
-def _check_info_keys(env_id: str, available: tuple[str, ...], info_keys: Sequence[str]) -> None:
-    unknown = [key for key in info_keys if key not in available]
-    if unknown:
-        raise InvalidArgument(f"info_keys: env '{env_id}' cannot report {unknown}; available: {list(available)}")
-
-
-def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:
-    _check_info_keys(env_id, tuple(task.info_keys), info_keys)
-    names = [o.name for o in task.objectives]
-    if not names or len(set(names)) != len(names):
-        raise Internal(f"env '{env_id}': objectives must be non-empty with unique names, got {names}")
-    try:
-        spaces.space_to_spec(task.observation_space)
-        spaces.leaf_dtype(task.action_space)
-    except TypeError as exc:
-        raise InvalidArgument(f"env_id: env '{env_id}' cannot be served: {exc}") from exc
