@@ -23,5 +23,16 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 
+# env_server's native gRPC front (the Rust extension in env_server/native; the server
+# falls back to grpc.aio without it), rebuilt when its sources or pins change.
+native_stamp=.venv/.mo-mpo-native.sha256
+native_want=$(cat env_server/native/Cargo.toml env_server/native/pyproject.toml env_server/native/src/*.rs \
+  Cargo.toml Cargo.lock proto/mo_env/v1/env.proto | sha256sum | cut -d' ' -f1)
+if [ "$(cat "$native_stamp" 2>/dev/null)" != "$native_want" ] || ! .venv/bin/python -c "import env_server_native" 2>/dev/null; then
+  echo "==> building env_server's native gRPC front (env_server/native, Rust; the first time takes a minute)"
+  (cd env_server/native && VIRTUAL_ENV="$(cd ../.. && pwd)/.venv" ../../.venv/bin/maturin develop --release --locked)
+  echo "$native_want" > "$native_stamp"
+fi
+
 # The Rust side needs nothing else: .cargo/config.toml points libtorch's build at
 # .venv, and cargo fetches the crates on first build (done by the callers).

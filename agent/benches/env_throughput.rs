@@ -1,6 +1,10 @@
 //! Env-server throughput: in-process Python vs. through the server from Rust.
 //!
-//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000 --batch-sizes 1,8,32 --repeats 3 --workers N]`
+//! `cargo bench -p agent --bench env_throughput [-- --env humanoid-run --calls 2000 --batch-sizes 1,8,32 --repeats 3 --workers N --server-args "--front grpcio"]`
+//!
+//! `--server-args` passes flags to `python -m env_server` (e.g. `--front grpcio` to
+//! measure the grpc.aio front, `--busy-poll-us 300`); the default server is as a user
+//! starts it (the native front when built).
 //!
 //! For each B in {1, 8, 32}, in one run on the same machine:
 //! - in-process: `python -m env_server.bench_inprocess --raw` steps B Task instances
@@ -132,11 +136,16 @@ async fn main() {
         .split(',')
         .map(|b| b.trim().parse().expect("--batch-sizes is a comma-separated list of numbers"))
         .collect();
-    let server = LocalServer::start(&ServerOptions::default()).await.expect("start env_server");
+    let server_args = arg("--server-args", "");
+    let options = ServerOptions {
+        extra_args: server_args.split_whitespace().map(String::from).collect(),
+        ..ServerOptions::default()
+    };
+    let server = LocalServer::start(&options).await.expect("start env_server");
     let client = EnvClient::connect(server.address()).await.expect("connect");
     println!(
-        "env_throughput: {env}, in-process Python (raw Task loop) vs. Rust client -> env_server on 127.0.0.1; \
-         medians of {repeats} repeats; `workers` = StepStream with the B instances split between \
+        "env_throughput: {env}, in-process Python (raw Task loop) vs. Rust client -> env_server on 127.0.0.1 \
+         (server flags: {server_args:?}); medians of {repeats} repeats; `workers` = StepStream with the B instances split between \
          the server process and min(B - 1, {max_workers}) worker processes"
     );
     let mode = |name: &str| format!("{:>12} {:>6} {:>9} {:>9}", format!("{name} st/s"), "ratio", "p50 ms", "p99 ms");

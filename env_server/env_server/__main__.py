@@ -14,6 +14,7 @@ import sys
 
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry, RegistryError
+from env_server.service import FRONTS
 from env_server.task import Objective
 
 
@@ -29,6 +30,20 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=DEFAULT_MAX_WORKERS,
         help="worker processes one session may ask for (MakeRequest.num_workers; default: one per CPU)",
+    )
+    p.add_argument(
+        "--front",
+        choices=FRONTS,
+        default="auto",
+        help="gRPC transport: native (the Rust env_server_native extension), grpcio (grpc.aio), "
+        "or auto = native when installed (default)",
+    )
+    p.add_argument(
+        "--busy-poll-us",
+        type=int,
+        default=0,
+        help="native front: microseconds a StepStream waits for its next request without sleeping; "
+        "spends that much CPU per Step to cut B=1 latency on machines slow to wake (default 0: off)",
     )
     p.add_argument("--list", action="store_true", help="print every env id with its objectives and exit")
     p.add_argument("--log-level", default="INFO", help="logging level for stderr (default INFO)")
@@ -76,7 +91,20 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
 
-    from env_server.server import serve  # grpc is only needed when serving
+    from env_server.server import resolve_front, serve  # grpc is only needed when serving
+
+    try:
+        front = resolve_front(args.front)
+    except ValueError as exc:
+        print(f"env-server: --{exc}", file=sys.stderr)
+        return 2
+    if args.busy_poll_us < 0 or (args.busy_poll_us > 0 and front != "native"):
+        print(
+            f"env-server: --busy-poll-us: expected 0, or > 0 with the native front; got {args.busy_poll_us} "
+            f"with the {front} front",
+            file=sys.stderr,
+        )
+        return 2
 
     async def run() -> None:
         stop = asyncio.Event()
@@ -91,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
             max_message_bytes=int(args.max_message_mb * 1024 * 1024),
             lease_seconds=args.session_lease,
             max_workers=args.max_workers,
+            front=front,
+            busy_poll_us=args.busy_poll_us,
             stop=stop,
         )
 

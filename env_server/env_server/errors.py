@@ -1,7 +1,7 @@
 """Typed errors raised by sessions, the registry and validation.
 
 Nothing below server.py knows about gRPC; each class here names the status code it
-becomes, and server.py maps them in exactly one place. Every message says which
+becomes, and service.status_of maps them in exactly one place for both fronts. Every message says which
 field was wrong, what was expected and what arrived.
 """
 

@@ -1,4 +1,5 @@
-"""Fixtures: real `python -m env_server` subprocesses on 127.0.0.1 with OS-chosen ports.
+"""Fixtures: real `python -m env_server` subprocesses on 127.0.0.1 with OS-chosen ports,
+through each front (native tonic and grpc.aio).
 
 Every server gets tests/plugins on its PYTHONPATH, so the test-only Tasks there are
 registered through a real `env_server.envs` entry point.
@@ -58,9 +59,13 @@ def running_server(*args: str, timeout: float = 30.0) -> Iterator[str]:
             proc.wait()
 
 
-@pytest.fixture(scope="session")
-def address() -> Iterator[str]:
-    with running_server() as addr:
+# Both transports serve the same EnvService; every test on the shared server runs on each.
+FRONTS = ("native", "grpcio")
+
+
+@pytest.fixture(scope="session", params=FRONTS)
+def address(request: pytest.FixtureRequest) -> Iterator[str]:
+    with running_server("--front", request.param) as addr:
         yield addr
 
 

@@ -8,7 +8,8 @@ import grpc
 import numpy as np
 import pytest
 
-from conftest import make, rpc_error, running_server, step
+from conftest import FRONTS, make, rpc_error, running_server, step
+from env_server.client import to_tensor
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
 
@@ -188,11 +189,19 @@ def test_too_many_sessions() -> None:
         make(s, "dst")
 
 
-def test_oversized_message() -> None:
-    with running_server("--max-message-mb", "1") as addr, grpc.insecure_channel(addr) as channel:
+@pytest.mark.parametrize("front", FRONTS)
+def test_oversized_message(front: str) -> None:
+    with running_server("--max-message-mb", "1", "--front", front) as addr, grpc.insecure_channel(addr) as channel:
         s = env_pb2_grpc.EnvServiceStub(channel)
         assert s.GetVersion(pb.GetVersionRequest()).max_message_bytes == 1024 * 1024
         session_id = make(s, "dst").session_id
         big = np.zeros(2 * 1024 * 1024 // 8, np.int64)
         err = rpc_error(step, s, session_id, big)
         assert err.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
+        assert "1048576" in err.details(), err.details()  # names the limit
+        requests = iter([pb.StepRequest(session_id=session_id, action=to_tensor(big))])
+        with pytest.raises(grpc.RpcError) as streamed:
+            list(s.StepStream(requests))
+        assert streamed.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
+        assert "1048576" in streamed.value.details(), streamed.value.details()
+        assert s.GetVersion(pb.GetVersionRequest()).max_message_bytes == 1024 * 1024  # still serving

@@ -1,0 +1,281 @@
+"""mo_env.v1.EnvService without a transport: the RPCs over a Registry and the Sessions.
+
+Both fronts in server.py serve this one object: grpc.aio, and the native (tonic)
+front of env_server_native, so the two cannot drift apart. Requests and responses are
+the generated protobuf messages; errors are EnvServerError subclasses, mapped to a
+status code name in exactly one place (`status_of`).
+
+Threads: unary RPCs and the lease reaper run on the asyncio loop. Step may run on the
+native front's own thread, so everything that reads or changes the session table, or
+steps or resets a Session, holds `_lock` (uncontended under grpc.aio, which runs
+everything on the loop).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import functools
+import json
+import logging
+import threading
+import time
+from typing import Any, Protocol, Sequence
+
+import env_server
+from env_server import wire
+from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted
+from env_server.registry import Registry
+from env_server.session import Autoreset, Session, make_session
+
+log = logging.getLogger(__name__)
+
+PROTOCOL_VERSION = "1.0.0"
+SERVICE_NAME = "mo_env.v1.EnvService"
+CAPABILITIES = (
+    "step_stream",
+    "autoreset.same_step",
+    "autoreset.next_step",
+    "autoreset.disabled",
+    "dict_observations",
+    "info_keys",
+    "episode_returns",
+    "instance_workers",
+)
+# The transports server.py can serve this service through (`--front`).
+FRONTS = ("auto", "native", "grpcio")
+# Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
+UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "Close")
+
+_AUTORESET = {
+    pb.AUTORESET_MODE_UNSPECIFIED: Autoreset.SAME_STEP,
+    pb.AUTORESET_MODE_SAME_STEP: Autoreset.SAME_STEP,
+    pb.AUTORESET_MODE_NEXT_STEP: Autoreset.NEXT_STEP,
+    pb.AUTORESET_MODE_DISABLED: Autoreset.DISABLED,
+}
+
+
+def status_of(exc: BaseException) -> tuple[str, str]:
+    """The one place where exceptions become statuses: (grpc.StatusCode name, message)."""
+    if isinstance(exc, EnvServerError):
+        return exc.code, exc.message
+    log.error("unexpected server error", exc_info=exc)
+    return "INTERNAL", f"env_server bug: {type(exc).__name__}: {exc}"
+
+
+class Reply(Protocol):
+    """How a front receives the answer to a submitted unary call (env_server_native.Reply)."""
+
+    def ok(self, response: bytes) -> None: ...
+
+    def error(self, code_name: str, message: str) -> None: ...
+
+
+class EnvService:
+    """mo_env.v1.EnvService over a Registry and a table of leased Sessions."""
+
+    def __init__(
+        self,
+        registry: Registry,
+        *,
+        max_sessions: int,
+        max_message_bytes: int,
+        lease_seconds: float,
+        max_workers: int,
+        loop: asyncio.AbstractEventLoop,
+    ) -> None:
+        self.registry = registry
+        self.max_sessions = max_sessions
+        self.max_workers = max_workers
+        self.max_message_bytes = max_message_bytes
+        self.lease_seconds = lease_seconds
+        self.loop = loop
+        self.sessions: dict[str, Session] = {}
+        self._encoders: dict[str, wire.StepEncoder] = {}  # per session, for its Step responses
+        self._making = 0  # Make calls between the limit check and registration
+        self._lock = threading.Lock()
+
+    # The exception -> status mapping, also where the native front looks for it.
+    status_of = staticmethod(status_of)
+
+    # -------------------------------------------------------------- sessions
+    def _session(self, session_id: str) -> Session:
+        session = self.sessions.get(session_id)
+        if session is None:
+            raise NotFound(f"unknown session '{session_id}' (closed, expired, or never made)")
+        return session
+
+    def close_session(self, session_id: str, reason: str) -> None:
+        with self._lock:
+            session = self.sessions.pop(session_id, None)
+            self._encoders.pop(session_id, None)
+            if session is not None:
+                session.close()
+        if session is not None:
+            log.info("closed session %s (%s): %s; %d open", session_id, session.env_id, reason, len(self.sessions))
+
+    def close_all(self) -> None:
+        for session_id in list(self.sessions):
+            self.close_session(session_id, "server shutdown")
+
+    async def reap(self) -> None:
+        """Close sessions idle for longer than the lease, forever (cancel to stop)."""
+        period = min(1.0, self.lease_seconds / 4)
+        while True:
+            await asyncio.sleep(period)
+            deadline = time.monotonic() - self.lease_seconds
+            for session_id, session in list(self.sessions.items()):
+                if session.last_used < deadline:
+                    self.close_session(session_id, f"lease of {self.lease_seconds:g} s expired")
+
+    # -------------------------------------------------------------- unary RPCs
+    async def GetVersion(self, request: pb.GetVersionRequest) -> pb.GetVersionResponse:
+        return pb.GetVersionResponse(
+            protocol_version=PROTOCOL_VERSION,
+            server_version=env_server.__version__,
+            capabilities=CAPABILITIES,
+            max_message_bytes=self.max_message_bytes,
+        )
+
+    async def ListEnvs(self, request: pb.ListEnvsRequest) -> pb.ListEnvsResponse:
+        return pb.ListEnvsResponse(
+            envs=[
+                pb.EnvInfo(env_id=e.env_id, description=e.description, objectives=wire.objectives_pb(e.objectives))
+                for e in self.registry.entries()
+            ]
+        )
+
+    async def Make(self, request: pb.MakeRequest) -> pb.MakeResponse:
+        if request.num_envs < 1:
+            raise InvalidArgument(f"num_envs: expected >= 1, got {request.num_envs}")
+        if request.num_workers > self.max_workers:
+            raise InvalidArgument(
+                f"num_workers: expected at most {self.max_workers} (this server's --max-workers), "
+                f"got {request.num_workers}"
+            )
+        kwargs = _parse_kwargs(request.kwargs_json)
+        autoreset = _AUTORESET.get(request.autoreset_mode)
+        if autoreset is None:
+            raise InvalidArgument(f"autoreset_mode: expected one of {sorted(_AUTORESET)}, got {request.autoreset_mode}")
+        open_now = len(self.sessions) + self._making
+        if open_now >= self.max_sessions:
+            raise ResourceExhausted(
+                f"session limit {self.max_sessions} reached ({open_now} open); close sessions or start "
+                "the server with --max-sessions"
+            )
+        self._making += 1
+        try:
+            build = functools.partial(
+                self._build,
+                request.env_id,
+                request.num_envs,
+                kwargs,
+                seed=request.seed if request.HasField("seed") else None,
+                autoreset=autoreset,
+                discount=request.discount if request.HasField("discount") else None,
+                info_keys=tuple(request.info_keys),
+                num_workers=request.num_workers,
+            )
+            # Task constructors can take seconds (MJCF compiles, worker spawns): off the loop.
+            future = self.loop.run_in_executor(None, build)
+            try:
+                session = await asyncio.shield(future)
+            except asyncio.CancelledError:
+                future.add_done_callback(_close_orphan)
+                raise
+        finally:
+            self._making -= 1
+        with self._lock:
+            self.sessions[session.id] = session
+            self._encoders[session.id] = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
+        log.info(
+            "made session %s: %s x%d; %d open", session.id, session.env_id, session.num_envs, len(self.sessions)
+        )
+        return pb.MakeResponse(session_id=session.id, spec=wire.spec_pb(session), lease_seconds=self.lease_seconds)
+
+    def _build(self, env_id: str, num_envs: int, kwargs: dict[str, Any], **options: Any) -> Session:
+        return make_session(self.registry.resolve(env_id), num_envs, kwargs, **options)
+
+    async def Reset(self, request: pb.ResetRequest) -> pb.ResetResponse:
+        with self._lock:
+            session = self._session(request.session_id)
+            return wire.reset_pb(session.reset(request.env_indices, request.seeds))
+
+    async def Close(self, request: pb.CloseRequest) -> pb.CloseResponse:
+        self._session(request.session_id)
+        self.close_session(request.session_id, "closed by the client")
+        return pb.CloseResponse()
+
+    def submit(self, method: str, request: bytes, reply: Reply) -> concurrent.futures.Future:
+        """Answer the serialized unary `request` on the loop, from any thread, via `reply`.
+
+        Cancelling the returned future cancels the call (its client went away).
+        """
+        return asyncio.run_coroutine_threadsafe(self._answer(method, request, reply), self.loop)
+
+    async def _answer(self, method: str, request: bytes, reply: Reply) -> None:
+        handler = getattr(self, method)
+        request_type = getattr(pb, pb.DESCRIPTOR.services_by_name["EnvService"].methods_by_name[method].input_type.name)
+        try:
+            response = await handler(request_type.FromString(request))
+        except Exception as exc:
+            reply.error(*status_of(exc))
+            return
+        reply.ok(response.SerializeToString())
+
+    # -------------------------------------------------------------- Step
+    def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes) -> bytes:
+        """One Step, as a serialized StepResponse (wire.StepEncoder's bytes)."""
+        with self._lock:
+            session = self.sessions.get(session_id)
+            if session is None:
+                self._session(session_id)
+            dtype_name = wire.PB_TO_DTYPE.get(dtype) or pb.DType.Name(dtype)
+            return self._encoders[session_id].encode(session.step(dtype_name, shape, data))
+
+    def open_stream(self) -> "StreamSteps":
+        return StreamSteps(self)
+
+
+class StreamSteps:
+    """One StepStream: it owns the sessions it steps, and closes them when it ends.
+
+    A front calls `finish(aborted)` exactly once. Every end of the stream closes its
+    sessions (a client's half-close, a cancelled or dropped stream: grpc.aio cannot tell
+    these apart), except a bad request's error status (`aborted=True`), which leaves the
+    sessions usable; the lease reaps them if the client is gone too.
+    """
+
+    def __init__(self, service: EnvService) -> None:
+        self._service = service
+        self._stepped: set[str] = set()
+
+    def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes) -> bytes:
+        response = self._service.step(session_id, dtype, shape, data)
+        self._stepped.add(session_id)
+        return response
+
+    def finish(self, aborted: bool) -> None:
+        if not aborted:
+            for session_id in self._stepped:
+                self._service.close_session(session_id, "its StepStream broke (client went away)")
+        self._stepped.clear()
+
+
+def _close_orphan(future: asyncio.Future) -> None:
+    """A Make whose client went away while its Tasks were being built."""
+    if not future.cancelled() and future.exception() is None:
+        future.result().close()
+
+
+def _parse_kwargs(kwargs_json: str) -> dict[str, Any]:
+    if not kwargs_json:
+        return {}
+    try:
+        kwargs = json.loads(kwargs_json)
+    except json.JSONDecodeError as exc:
+        raise InvalidArgument(f"kwargs_json: expected a JSON object, got invalid JSON {kwargs_json!r}: {exc}") from exc
+    if not isinstance(kwargs, dict):
+        raise InvalidArgument(f"kwargs_json: expected a JSON object, got {type(kwargs).__name__} {kwargs_json!r}")
+    return kwargs
