@@ -5,10 +5,11 @@ Two fronts serve it, chosen by `--front`:
 
 - `native` (env_server_native, a Rust extension built by scripts/setup.sh): tonic on
   its own thread in this process. The thread that reads a StepRequest off the socket
-  runs the Step itself, so a streamed Step crosses no thread inside the server; that is
-  what brings the B=1 round-trip overhead under 0.3 ms. Other RPCs go to the loop.
+  runs the Step itself, so a streamed Step crosses no thread inside the server (the
+  README has the B=1 figures). Other RPCs go to the asyncio loop.
 - `grpcio` (grpc.aio, pure Python): every message travels from grpc core's I/O thread
-  through a poller thread to the asyncio loop, about 0.2 ms more per Step.
+  through a poller thread to the asyncio loop, 0.15-0.3 ms more per B=1 Step on the
+  2-vCPU bench machine.
 
 `auto` (the default) is native when the extension is installed, else grpcio.
 """
