@@ -26,7 +26,7 @@ from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
-from env_server.service import FRONTS, SERVICE_NAME, UNARY_METHODS, EnvService, status_of
+from env_server.service import FRONTS, MESSAGE_TYPES, SERVICE_NAME, UNARY_METHODS, EnvService, status_of
 
 log = logging.getLogger(__name__)
 
@@ -94,8 +94,7 @@ def _method_handlers(service: EnvService) -> dict[str, grpc.RpcMethodHandler]:
     streaming = _GrpcAioHandlers(service)
     handlers = {}
     for method in pb.DESCRIPTOR.services_by_name["EnvService"].methods:
-        request = getattr(pb, method.input_type.name)
-        response = getattr(pb, method.output_type.name)
+        request, response = MESSAGE_TYPES[method.name]
         if method.name in UNARY_METHODS:
             behaviour = _unary(getattr(service, method.name))
         else:

@@ -47,6 +47,11 @@ CAPABILITIES = (
 FRONTS = ("auto", "native", "grpcio")
 # Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
 UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "Close")
+# Request and response message classes of every EnvService method, read once from the proto.
+MESSAGE_TYPES = {
+    m.name: (getattr(pb, m.input_type.name), getattr(pb, m.output_type.name))
+    for m in pb.DESCRIPTOR.services_by_name["EnvService"].methods
+}
 
 _AUTORESET = {
     pb.AUTORESET_MODE_UNSPECIFIED: Autoreset.SAME_STEP,
@@ -215,10 +220,9 @@ class EnvService:
         return asyncio.run_coroutine_threadsafe(self._answer(method, request, reply), self.loop)
 
     async def _answer(self, method: str, request: bytes, reply: Reply) -> None:
-        handler = getattr(self, method)
-        request_type = getattr(pb, pb.DESCRIPTOR.services_by_name["EnvService"].methods_by_name[method].input_type.name)
+        request_type, _ = MESSAGE_TYPES[method]
         try:
-            response = await handler(request_type.FromString(request))
+            response = await getattr(self, method)(request_type.FromString(request))
         except Exception as exc:
             reply.error(*status_of(exc))
             return
