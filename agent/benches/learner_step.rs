@@ -9,41 +9,22 @@
 //! online critic forward+backward on the 4096 pairs and Adam; E-step weights and
 //! temperature duals; decoupled M-step on the 4608 states x 20 samples, backward,
 //! Adam on the policy and on the duals. Timed: median of 20 steps after 3 warm-up steps.
+//! `agent/benches/learner_step_torch.py` is the same step in plain PyTorch.
 //!
-//! Run: `cargo bench -p agent --bench learner_step` (prints its figure last).
+//! Then, unless `--no-torch`, it runs that script in the same invocation (same
+//! threads) and prints the ratio of the two medians.
+//!
+//! Run: `cargo bench -p agent --bench learner_step [-- --threads N --steps N --no-torch]`
+//! (prints its figures last).
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
-use agent::algo::{LearnerDims, Learner, SnippetBatch};
-use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
-use agent::nets::ActionKind;
-use tch::{Kind, Tensor};
+mod common;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
+use agent::config::{LearnerConfig, NetworkConfig};
 
 fn main() {
-    let threads = agent::device::configure_threads(None);
-    let device = agent::device::learner_device();
     let mut cfg = LearnerConfig {
-        objectives: vec![
-            ObjectiveConfig {
-                name: "task".into(),
-                epsilon: 0.1,
-                source: ObjectiveSource::Learned,
-            },
-            ObjectiveConfig {
-                name: "action_norm".into(),
-                epsilon: 0.05,
-                source: ObjectiveSource::ActionNorm,
-            },
-        ],
+        objectives: common::task_and_action_norm(0.05),
         network: NetworkConfig {
             policy_layers: vec![400, 400, 300],
             critic_layers: vec![500, 500, 400],
@@ -58,62 +39,22 @@ fn main() {
     cfg.mpo.beta_cov = 1e-6;
     cfg.mpo.learning_rate = 2e-4;
     cfg.mpo.adam_eps = 1e-8;
-    let (t, b, obs_dim, act_dim) = (
-        cfg.mpo.retrace_length as i64,
-        cfg.mpo.batch_size as i64,
-        67,
-        21,
-    );
-    let dims = LearnerDims {
-        obs_dim,
-        action: ActionKind::Continuous { dim: act_dim },
-        reward_names: vec!["task".into(), "action_norm".into()],
-        obs_leaves: Vec::new(),
-    };
-    let mut learner = Learner::new(cfg.clone(), dims, device).expect("valid config");
-    tch::manual_seed(0);
-    let opts = (Kind::Float, tch::Device::Cpu);
-    let batch = SnippetBatch {
-        observations: Tensor::randn([t + 1, b, obs_dim], opts),
-        actions: Tensor::randn([t, b, act_dim], opts).clamp(-1.0, 1.0),
-        rewards: Tensor::randn([t, b, 2], opts),
-        discounts: Tensor::ones([t, b], opts),
-        behaviour_log_probs: Tensor::randn([t, b], opts) - 20.0,
-        valid: Tensor::ones([t, b], opts),
+    let rust_ms = common::run(common::StepSize { name: "learner_step", obs_dim: 67, act_dim: 21, cfg });
+    if std::env::args().any(|a| a == "--no-torch") {
+        return;
     }
-    .to_device(device);
-    println!(
-        "learner_step: obs {obs_dim}, act {act_dim}, B {b}, T {t}, M {}, policy {:?}, critic {:?}, K 2 (task + closed-form action_norm), device {device:?}, threads {threads}",
-        cfg.mpo.num_samples, cfg.network.policy_layers, cfg.network.critic_layers
-    );
-    for _ in 0..3 {
-        learner.step(&batch).expect("step");
-    }
-    let mut totals = Vec::new();
-    let mut phases = [0.0f64; 4];
-    for _ in 0..20 {
-        let start = std::time::Instant::now();
-        let stats = learner.step(&batch).expect("step");
-        totals.push(start.elapsed().as_secs_f64() * 1e3);
-        let p = stats.timings;
-        for (acc, v) in phases.iter_mut().zip([
-            p.policy_evaluation_ms,
-            p.e_step_ms,
-            p.m_step_ms,
-            p.target_update_ms,
-        ]) {
-            *acc += v;
-        }
-    }
-    let sum: f64 = phases.iter().sum();
-    let names = [
-        "policy evaluation (sampling, target critic x M, Retrace, critic update)",
-        "E-step",
-        "M-step + duals",
-        "target update",
-    ];
-    for (name, v) in names.iter().zip(phases) {
-        println!("  {:>5.1}%  {name}", 100.0 * v / sum);
-    }
-    println!("learner_step_ms_median={:.1}", median(totals));
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let threads = tch::get_num_threads().to_string();
+    let out = std::process::Command::new(root.join(".venv/bin/python"))
+        .args([root.join("agent/benches/learner_step_torch.py").to_str().expect("utf-8 path"), "--threads", &threads])
+        .output()
+        .expect("run .venv/bin/python agent/benches/learner_step_torch.py (made by scripts/setup.sh)");
+    let text = String::from_utf8_lossy(&out.stdout);
+    print!("{text}");
+    let torch_ms: f64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("learner_step_ms_median="))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no figure from the PyTorch script: {}", String::from_utf8_lossy(&out.stderr)));
+    println!("ratio_rust_over_torch={:.3}  (Rust {rust_ms:.1} ms, PyTorch {torch_ms:.1} ms, {threads} threads)", rust_ms / torch_ms);
 }

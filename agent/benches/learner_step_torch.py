@@ -8,12 +8,14 @@ Target policy on (T+1)B states with M samples each; target critic on all (T+1)B*
 online critic regression + Adam; E-step with temperature duals; decoupled M-step with
 alpha duals; Adam on the policy and the duals. Median of 20 steps after 3 warm-up steps.
 
-Run: .venv/bin/python agent/benches/learner_step_torch.py  (prints its figure last)
+Run: .venv/bin/python agent/benches/learner_step_torch.py [--threads N]  (prints its figure
+last; `cargo bench -p agent --bench learner_step` runs it too and prints the ratio)
 """
 
 import math
 import os
 import statistics
+import sys
 import time
 
 import torch
@@ -56,7 +58,8 @@ def log_prob(mean, std, a):
 
 
 def main():
-    torch.set_num_threads(os.cpu_count())
+    threads = int(sys.argv[sys.argv.index("--threads") + 1]) if "--threads" in sys.argv else os.cpu_count()
+    torch.set_num_threads(threads)
     torch.manual_seed(0)
     policy, critic = Policy(), Critic()
     target_policy, target_critic = Policy(), Critic()

@@ -33,6 +33,7 @@ fn arg(name: &str, default: usize) -> usize {
 }
 
 fn main() {
+    agent::device::tune_allocator();
     let threads = agent::device::configure_threads(None);
     let device = agent::device::learner_device();
     let mut cfg = LearnerConfig {

@@ -220,7 +220,7 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         }
         let env_steps = schedule.counters().env_steps + b as u64;
         for episode in &step.episodes {
-            let record = EpisodeRecord { env_steps, actor: id, episode: episode.clone() };
+            let record = EpisodeRecord { env_steps, actor: id, episode: episode.clone(), wall_seconds: schedule.elapsed_seconds() };
             files.episode(&record).map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
         }
         schedule.add_env_steps(b as u64, step.episodes.into_iter().map(|e| e.episode_return));

@@ -34,6 +34,7 @@ pub mod plot;
 pub mod replay;
 pub mod run_config;
 pub mod schedule;
+pub mod solve;
 pub mod spec;
 pub mod sweep;
 pub mod train;

@@ -7,6 +7,7 @@ use std::time::Instant;
 use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
+use agent::config::DeviceChoice;
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
 use agent::train::{TrainOptions, TrainSummary, evaluate_checkpoint, train};
@@ -39,6 +40,13 @@ enum Command {
         /// Override run.total_env_steps.
         #[arg(long)]
         total_env_steps: Option<u64>,
+        /// Override any config field, `dotted.path=toml_value` (repeatable), e.g.
+        /// `--set seed=3 --set learner.mpo.batch_size=64 --set learner.objectives.1.epsilon=0.0`.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        overrides: Vec<String>,
+        /// Override learner.device.
+        #[arg(long, value_enum)]
+        device: Option<DeviceChoice>,
     },
     /// Train every setting of an ε (or weight) grid, evaluate, and write the Pareto front.
     Sweep {
@@ -48,6 +56,9 @@ enum Command {
         /// Server address host:port (repeatable); default: the base config's, or a local server.
         #[arg(long = "server")]
         servers: Vec<String>,
+        /// Override learner.device of every run.
+        #[arg(long, value_enum)]
+        device: Option<DeviceChoice>,
     },
     /// Evaluate a checkpoint with the deterministic policy; returns come from the server.
     Eval {
@@ -87,22 +98,30 @@ enum Command {
     },
 }
 
-#[tokio::main]
-async fn main() -> Result<()> {
+fn main() -> Result<()> {
+    // Before the runtime's threads exist: mallopt's settings are process-wide.
+    agent::device::tune_allocator();
+    tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run())
+}
+
+async fn run() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
-        Command::Train { config, resume, servers, total_env_steps } => {
+        Command::Train { config, resume, servers, total_env_steps, overrides, device } => {
             let path = match (&resume, config) {
                 (Some(dir), _) => dir.join("config.toml"),
                 (None, Some(path)) => path,
                 (None, None) => unreachable!("clap requires --config or --resume"),
             };
-            let mut cfg = TrainConfig::load(&path).with_context(|| format!("loading {}", path.display()))?;
+            let mut cfg = TrainConfig::load_with(&path, &overrides).with_context(|| format!("loading {}", path.display()))?;
             if let Some(n) = total_env_steps {
                 cfg.run.total_env_steps = n;
+            }
+            if let Some(d) = device {
+                cfg.learner.device = d;
             }
             if !servers.is_empty() {
                 cfg.env.servers = servers;
@@ -114,8 +133,11 @@ async fn main() -> Result<()> {
             }
             print_summary(&summary?);
         }
-        Command::Sweep { config, servers } => {
-            let (sweep_cfg, base) = SweepConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+        Command::Sweep { config, servers, device } => {
+            let (sweep_cfg, mut base) = SweepConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+            if let Some(d) = device {
+                base.learner.device = d;
+            }
             let configured = if servers.is_empty() { base.env.servers.clone() } else { servers };
             let (addresses, local) = server_addresses(&configured).await?;
             let result = sweep(&sweep_cfg, &base, &addresses, true).await;
@@ -202,6 +224,20 @@ fn print_summary(s: &TrainSummary) {
     println!("  eval return ({} episodes, deterministic policy)", s.eval_episodes.len());
     println!("    undiscounted         {}", format_vector(&s.eval_return));
     println!("    discounted (γ={})  {}", s.eval_discount, format_vector(&s.eval_discounted_return));
+    if !s.solve_threshold.is_empty() {
+        let rule: Vec<String> = s.solve_threshold.iter().map(|(k, v)| format!("{k} >= {v}")).collect();
+        match &s.solved {
+            Some(r) => println!(
+                "  solved ({}, mean of {} training episodes) at {} env steps, {:.1} s: {}",
+                rule.join(", "),
+                agent::solve::SOLVE_WINDOW,
+                r.env_steps,
+                r.wall_seconds,
+                format_vector(&r.running_mean)
+            ),
+            None => println!("  not solved ({}, mean of {} training episodes)", rule.join(", "), agent::solve::SOLVE_WINDOW),
+        }
+    }
     println!("  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg checkpoints/");
 }
 

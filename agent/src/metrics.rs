@@ -2,7 +2,7 @@
 //!
 //! - `config.toml`: the resolved config (what `--resume` reads back);
 //! - `episodes.csv`: one row per finished training episode, with the server's
-//!   undiscounted and discounted vector returns;
+//!   undiscounted and discounted vector returns and the seconds since `train` started;
 //! - `learner.jsonl`: learner statistics every `log_period` learner steps;
 //! - `checkpoints/`, `summary.json`, `curves.{png,svg}` (written by `train`).
 
@@ -32,6 +32,8 @@ pub struct EpisodeRecord {
     pub actor: usize,
     /// The server's summary.
     pub episode: EpisodeSummary,
+    /// Seconds since this `train` invocation started.
+    pub wall_seconds: f64,
 }
 
 fn append(path: &Path) -> std::io::Result<(BufWriter<File>, bool)> {
@@ -50,6 +52,7 @@ impl RunFiles {
             header.extend(objective_names.iter().map(|n| format!("return_{n}")));
             header.extend(objective_names.iter().map(|n| format!("discounted_return_{n}")));
             header.push("terminated".into());
+            header.push("wall_seconds".into());
             writeln!(episodes, "{}", header.join(","))?;
         }
         let (learner, _) = append(&dir.join("learner.jsonl"))?;
@@ -68,6 +71,7 @@ impl RunFiles {
         row.extend(e.episode_return.iter().map(|v| format!("{v}")));
         row.extend(e.discounted_return.iter().map(|v| format!("{v}")));
         row.push(e.terminated.to_string());
+        row.push(format!("{:.3}", record.wall_seconds));
         let mut w = self.episodes.lock().unwrap_or_else(|p| p.into_inner());
         writeln!(w, "{}", row.join(","))
     }

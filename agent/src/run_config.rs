@@ -15,6 +15,7 @@
 //! epsilon = 0.01
 //! ```
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -78,6 +79,13 @@ pub struct RunConfig {
     pub eval_episodes: usize,
     /// Directory under which `runs/<task>__<algo>__<seed>__<time>/` is made.
     pub runs_dir: PathBuf,
+    /// Returns that count as solved, by objective name (`{ task = -200.0 }`): the run
+    /// reports the env steps and seconds at which the mean of the last 10 training
+    /// episodes first reached all of them (`solve.rs`). Empty: not measured.
+    pub solve_threshold: BTreeMap<String, f64>,
+    /// End training as soon as the run counts as solved (then evaluate as usual), as
+    /// Stable-Baselines3's `StopTrainingOnRewardThreshold` does. Needs `solve_threshold`.
+    pub stop_on_solve: bool,
 }
 
 impl Default for RunConfig {
@@ -91,6 +99,8 @@ impl Default for RunConfig {
             log_period: 50,
             eval_episodes: 10,
             runs_dir: PathBuf::from("runs"),
+            solve_threshold: BTreeMap::new(),
+            stop_on_solve: false,
         }
     }
 }
@@ -117,16 +127,28 @@ pub struct TrainConfig {
 impl TrainConfig {
     /// Read and validate a TOML file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        Self::load_with(path, &[])
+    }
+
+    /// Read a TOML file, apply `overrides` (`dotted.path=toml_value`, e.g.
+    /// `learner.mpo.batch_size=64` or `learner.objectives.1.epsilon=0.0`, where a
+    /// number indexes an array), then validate.
+    pub fn load_with(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Invalid {
             field: "config file".into(),
             requirement: "readable".into(),
             got: format!("{}: {e}", path.display()),
         })?;
-        let mut cfg: TrainConfig = toml::from_str(&text).map_err(|e| ConfigError::Invalid {
+        let schema_error = |e: toml::de::Error| ConfigError::Invalid {
             field: format!("config file {}", path.display()),
             requirement: "valid TOML matching the schema".into(),
             got: e.to_string(),
-        })?;
+        };
+        let mut table: toml::Table = toml::from_str(&text).map_err(schema_error)?;
+        for o in overrides {
+            apply_override(&mut table, o)?;
+        }
+        let mut cfg: TrainConfig = table.try_into().map_err(schema_error)?;
         cfg.learner.seed = cfg.seed;
         cfg.validate()?;
         Ok(cfg)
@@ -166,6 +188,12 @@ impl TrainConfig {
                 return invalid(field, ">= 1", "0".into());
             }
         }
+        if let Some((name, v)) = r.solve_threshold.iter().find(|(_, v)| !v.is_finite()) {
+            return invalid(&format!("run.solve_threshold.{name}"), "finite", v.to_string());
+        }
+        if r.stop_on_solve && r.solve_threshold.is_empty() {
+            return invalid("run.stop_on_solve", "false unless run.solve_threshold names a threshold", "true".into());
+        }
         if r.min_replay_transitions == 0 {
             return invalid("run.min_replay_transitions", ">= 1", "0".into());
         }
@@ -176,6 +204,40 @@ impl TrainConfig {
     pub fn algo_name(&self) -> &'static str {
         self.learner.algorithm.short_name()
     }
+}
+
+/// Sets `dotted.path=value` in `table`; the value is TOML (`64`, `1e-3`, `"dst"`,
+/// `{ task = -200.0 }`), and a path segment that is a number indexes an array.
+fn apply_override(table: &mut toml::Table, text: &str) -> Result<(), ConfigError> {
+    let bad = |requirement: &str| ConfigError::Invalid { field: "--set".into(), requirement: requirement.into(), got: format!("{text:?}") };
+    let (path, value) = text.split_once('=').ok_or_else(|| bad("dotted.path=value"))?;
+    let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
+        .map_err(|_| bad("a TOML value after '=' (strings in quotes)"))?
+        .remove("v")
+        .ok_or_else(|| bad("a value"))?;
+    let mut node = table;
+    let keys: Vec<&str> = path.trim().split('.').collect();
+    let (last, parents) = keys.split_last().ok_or_else(|| bad("a path"))?;
+    // Walk tables by name; a numeric segment picks an array's item, which must be a table.
+    let mut segments = parents.iter().peekable();
+    while let Some(key) = segments.next() {
+        let child = node.entry(key.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        node = match child {
+            toml::Value::Table(t) => t,
+            toml::Value::Array(items) => {
+                let index = segments.next().ok_or_else(|| bad("an array item's field, e.g. objectives.1.epsilon"))?;
+                let i: usize = index.parse().map_err(|_| bad("a number to index an array"))?;
+                match items.get_mut(i) {
+                    Some(toml::Value::Table(t)) => t,
+                    Some(_) => return Err(bad("an array of tables")),
+                    None => return Err(bad("an index inside the array")),
+                }
+            }
+            _ => return Err(bad("a path through tables and arrays")),
+        };
+    }
+    node.insert(last.to_string(), value);
+    Ok(())
 }
 
 #[cfg(test)]
@@ -194,6 +256,24 @@ mod tests {
         let cfg = TrainConfig::load(&path).unwrap();
         assert_eq!((cfg.env.num_envs, cfg.env.num_actors, cfg.learner.seed), (8, 1, 5));
         assert_eq!(cfg.run, RunConfig::default());
+    }
+
+    #[test]
+    fn overrides_set_nested_fields_and_array_items() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.toml");
+        let text = "[env]\nid = \"dst\"\n[[learner.objectives]]\nname = \"time\"\nepsilon = 0.01\n[[learner.objectives]]\nname = \"treasure\"\nepsilon = 0.5\n";
+        std::fs::write(&path, text).unwrap();
+        let sets = ["learner.mpo.batch_size=64", "learner.objectives.1.epsilon=0.0", "run.solve_threshold={ treasure = 20.0 }", "seed=7"];
+        let cfg = TrainConfig::load_with(&path, &sets.map(String::from)).unwrap();
+        assert_eq!((cfg.learner.mpo.batch_size, cfg.learner.objectives[1].epsilon, cfg.seed, cfg.learner.seed), (64, 0.0, 7, 7));
+        assert_eq!(cfg.run.solve_threshold["treasure"], 20.0);
+        let err = TrainConfig::load_with(&path, &["learner.objectives.5.epsilon=0".into()]).unwrap_err().to_string();
+        assert_eq!(err, r#"--set must be an index inside the array, got "learner.objectives.5.epsilon=0""#);
+        let err = TrainConfig::load_with(&path, &["learner.mpo.batch_size".into()]).unwrap_err().to_string();
+        assert!(err.contains("dotted.path=value"), "{err}");
+        let err = TrainConfig::load_with(&path, &["learner.mpo.batch_sise=3".into()]).unwrap_err().to_string();
+        assert!(err.contains("batch_sise"), "{err}");
     }
 
     #[test]

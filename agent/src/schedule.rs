@@ -12,8 +12,10 @@
 //! machine.
 
 use std::sync::{Condvar, Mutex, MutexGuard};
+use std::time::Instant;
 
 use crate::replay::SnippetReplay;
+use crate::solve::{SolveRecord, SolveTracker};
 
 /// Episodes kept for the running mean shown while training.
 pub const RECENT: usize = 20;
@@ -42,6 +44,8 @@ pub struct Counters {
     pub stop: bool,
     /// First fatal error, if any.
     pub error: Option<String>,
+    /// Decides and keeps when the run first counted as solved (`run.solve_threshold`).
+    pub solve: SolveTracker,
 }
 
 /// How many learner steps the data so far allows.
@@ -80,6 +84,8 @@ pub struct Schedule {
     /// Learner steps already done when the replay was made (resumed runs), so that an
     /// on-policy budget counts only this invocation's unrolls.
     learner_steps_at_start: u64,
+    /// When this invocation started (wall-clock stamps of episodes and "solved").
+    started: Instant,
 }
 
 impl Schedule {
@@ -92,7 +98,18 @@ impl Schedule {
             actor_wake: tokio::sync::Notify::new(),
             replay: Mutex::new(replay),
             pace,
+            started: Instant::now(),
         }
+    }
+
+    /// Seconds since the schedule was made (the start of this `train` invocation).
+    pub fn elapsed_seconds(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// When the run first counted as solved, if it has.
+    pub fn solved(&self) -> Option<SolveRecord> {
+        self.lock().solve.solved().cloned()
     }
 
     /// A consistent copy of the counters.
@@ -126,17 +143,29 @@ impl Schedule {
 
     /// Record env steps and finished episodes' returns from an actor; wake the learner.
     pub fn add_env_steps(&self, steps: u64, episode_returns: impl IntoIterator<Item = Vec<f64>>) {
+        let wall = self.elapsed_seconds();
         let mut c = self.lock();
         c.env_steps += steps;
         for r in episode_returns {
             c.episodes += 1;
+            let (env_steps, episodes) = (c.env_steps, c.episodes);
+            if let Some(record) = c.solve.observe(&r, env_steps, episodes, wall) {
+                tracing::info!(env_steps, wall_seconds = record.wall_seconds, mean = ?record.running_mean, "solved");
+                if c.solve.stop_on_solve {
+                    c.stop = true;
+                }
+            }
             if c.recent_returns.len() == RECENT {
                 c.recent_returns.pop_front();
             }
             c.recent_returns.push_back(r);
         }
+        let stopping = c.stop;
         drop(c);
         self.learner_wake.notify_all();
+        if stopping {
+            self.actor_wake.notify_waiters();
+        }
     }
 
     /// Actors: wait until the learner has caught up with the env steps so far (or stop).

@@ -19,7 +19,7 @@ use crate::actor::{ActionMap, ActorContext, run_actor};
 use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
-use crate::device::{configure_threads, learner_device};
+use crate::device::{choose_device, configure_threads};
 use crate::env::grpc::EnvClient;
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
@@ -30,6 +30,7 @@ use crate::plot::{Figure, PlotError, Series, SeriesKind};
 use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Pace, Schedule};
+use crate::solve::{SolveRecord, SolveTracker};
 use crate::spec::EnvSpec;
 
 /// Errors of a training run.
@@ -106,6 +107,11 @@ pub struct TrainSummary {
     pub eval_discounted_return: Vec<f64>,
     /// The discount of `eval_discounted_return`.
     pub eval_discount: f64,
+    /// `run.solve_threshold`: returns that count as solved, by objective.
+    pub solve_threshold: std::collections::BTreeMap<String, f64>,
+    /// When the mean of the last 10 training episodes first reached every threshold
+    /// (`null` when it never did, or no threshold was given).
+    pub solved: Option<SolveRecord>,
 }
 
 /// Run one training job against the servers at `addresses` (round-robin per actor).
@@ -117,7 +123,8 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     let dims = LearnerDims::from_spec(&spec)?;
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
-    let device = learner_device();
+    let device = choose_device(&cfg.learner, &dims)?;
+    tracing::info!(?device, "learner device");
     let (run_dir, learner, counters) = match &options.resume {
         Some(dir) => {
             let (ckpt, progress) = latest_checkpoint(dir)?;
@@ -167,6 +174,9 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
         (cfg.learner.mpo.replay_capacity, pace)
     };
     let replay = SnippetReplay::new(layout, capacity, cfg.seed);
+    let mut solve = SolveTracker::new(&cfg.run.solve_threshold, &objectives)?;
+    solve.stop_on_solve = cfg.run.stop_on_solve;
+    let counters = Counters { solve, ..counters };
     let schedule = Arc::new(Schedule::new(replay, pace, counters));
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
     let latest = Arc::new(Mutex::new(None));
@@ -272,6 +282,8 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
         eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
         eval_discount: spec.discount,
         eval_episodes: eval,
+        solve_threshold: cfg.run.solve_threshold.clone(),
+        solved: schedule.solved(),
     };
     write_json_atomic(&run_dir.join("summary.json"), &summary).map_err(io(&run_dir))?;
     plot_curves(&run_dir, &objectives)?;

@@ -125,6 +125,22 @@ pub struct LearnerConfig {
     pub seed: u64,
     /// libtorch intra-op threads; `None` = all available cores.
     pub num_threads: Option<usize>,
+    /// Where the learner runs: `auto` (a GPU when libtorch sees one and the networks
+    /// are large enough to gain from it, see `device.rs`), `cpu` or `cuda`.
+    pub device: DeviceChoice,
+}
+
+/// The learner's device setting (`learner.device`, `--device`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceChoice {
+    /// CUDA for networks large enough to gain from it, when a GPU is visible; else CPU.
+    #[default]
+    Auto,
+    /// Always the CPU.
+    Cpu,
+    /// CUDA device 0; an error when libtorch sees no GPU.
+    Cuda,
 }
 
 impl Default for LearnerConfig {
@@ -137,6 +153,7 @@ impl Default for LearnerConfig {
             vmpo: VmpoConfig::default(),
             seed: 0,
             num_threads: None,
+            device: DeviceChoice::Auto,
         }
     }
 }

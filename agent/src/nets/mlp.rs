@@ -4,6 +4,13 @@
 //!
 //! Weights use PyTorch's `nn.Linear` initialisation, uniform(-1/sqrt(fan_in), 1/sqrt(fan_in))
 //! for weight and bias, so the PyTorch reference in `benches/` builds the same networks.
+//!
+//! The activations run in place. Where no gradient is tracked (target networks, actors)
+//! they are computed from cheaper kernels: libtorch 2.13's AVX-512 CPU kernels for ELU
+//! (via expm1) and tanh take 6.7 and 3 ns per element on the development machine, exp
+//! and sigmoid 1 and 0.6, and the target critic's M samples per state make these
+//! activations a third of a learner step. The identities used are exact;
+//! only the rounding differs (by at most a few 1e-7).
 
 use tch::{Tensor, nn};
 
@@ -37,6 +44,33 @@ impl Dense {
     }
 }
 
+/// ELU in place. Untracked: `elu(x) = max(x, exp(min(x, 0)) - 1)` (for x <= 0,
+/// exp(x) - 1 >= x; for x > 0 the second term is 0 < x).
+pub(crate) fn elu_(x: &mut Tensor) {
+    if x.requires_grad() {
+        // ELU's backward uses its result, so in place is autograd-safe.
+        let _ = x.elu_();
+        return;
+    }
+    let mut negative_part = x.clamp_max(0.0);
+    let _ = negative_part.exp_();
+    let _ = negative_part.g_sub_scalar_(1.0);
+    let _ = x.maximum_out(x, &negative_part);
+}
+
+/// tanh in place. Untracked: `tanh(x) = 2 sigmoid(2x) - 1`.
+pub(crate) fn tanh_(x: &mut Tensor) {
+    if x.requires_grad() {
+        // tanh's backward uses its result, so in place is autograd-safe.
+        let _ = x.tanh_();
+        return;
+    }
+    let _ = x.g_mul_scalar_(2.0);
+    let _ = x.sigmoid_();
+    let _ = x.g_mul_scalar_(2.0);
+    let _ = x.g_sub_scalar_(1.0);
+}
+
 /// LayerNorm with learned scale and shift over the last dimension (eps 1e-5).
 #[derive(Debug)]
 pub struct Norm {
@@ -53,10 +87,9 @@ impl Norm {
 
     /// LayerNorm then tanh. # Shapes `[.., dim] -> [.., dim]`.
     pub fn forward_tanh(&self, x: &Tensor) -> Tensor {
-        // In place: LayerNorm's backward needs its input, not its output; tanh's uses
-        // its result.
+        // In place: LayerNorm's backward needs its input, not its output.
         let mut y = nn::Module::forward(&self.inner, x);
-        let _ = y.tanh_();
+        tanh_(&mut y);
         y
     }
 }
@@ -99,8 +132,8 @@ impl LayerNormMlp {
         let mut h = self.norm.forward_tanh(&self.first.forward(x));
         for layer in &self.hidden {
             h = layer.forward(&h);
-            // In place: ELU's backward uses its result, Linear's does not need it.
-            let _ = h.elu_();
+            // In place: Linear's backward does not need its output.
+            elu_(&mut h);
         }
         h
     }
@@ -122,7 +155,11 @@ impl StackedDense {
 
     /// `[C or 1, P, in] -> [C, P, out]`.
     fn forward(&self, x: &Tensor) -> Tensor {
-        x.matmul(&self.weight) + &self.bias
+        // The bias is added in place: the product is a fresh tensor, and an add's
+        // backward needs neither operand.
+        let mut y = x.matmul(&self.weight);
+        let _ = y.g_add_(&self.bias);
+        y
     }
 }
 
@@ -155,8 +192,8 @@ impl HeadStack {
         for (i, layer) in self.layers.iter().enumerate() {
             x = layer.forward(&x);
             if i < last {
-                // In place: ELU's backward uses its result, Linear's does not need it.
-                let _ = x.elu_();
+                // In place: Linear's backward does not need its output.
+                elu_(&mut x);
             }
         }
         x.squeeze_dim(-1).transpose(0, 1)
@@ -167,6 +204,20 @@ impl HeadStack {
 mod tests {
     use super::*;
     use tch::{Device, Kind};
+
+    #[test]
+    fn untracked_activations_match_libtorch() {
+        let x = Tensor::linspace(-12.0, 12.0, 4801, (Kind::Float, Device::Cpu));
+        for (name, fast, reference) in [
+            ("elu", elu_ as fn(&mut Tensor), x.elu()),
+            ("tanh", tanh_ as fn(&mut Tensor), x.tanh()),
+        ] {
+            let mut y = x.copy();
+            fast(&mut y);
+            let err = (&y - &reference).abs().max().double_value(&[]);
+            assert!(err < 5e-7, "{name}: max error {err}");
+        }
+    }
 
     #[test]
     fn shapes_and_first_layer_is_bounded() {

@@ -1,0 +1,108 @@
+//! The MO-MPO learner-step benchmark shared by `learner_step` (humanoid size, Table 3)
+//! and `learner_step_pendulum` (the pendulum preset's size): one full step on a fixed
+//! random batch, timed as the median of `--steps` steps after 3 warm-up steps, with
+//! the share of each phase.
+
+use agent::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::config::{LearnerConfig, ObjectiveConfig, ObjectiveSource};
+use agent::nets::ActionKind;
+use tch::{Kind, Tensor};
+
+/// What one benchmark measures.
+pub struct StepSize {
+    /// Printed name.
+    pub name: &'static str,
+    /// Observation and action sizes.
+    pub obs_dim: i64,
+    /// Action dimensions D.
+    pub act_dim: i64,
+    /// The learner (networks, batch, M, ...).
+    pub cfg: LearnerConfig,
+}
+
+/// `task` learned, `action_norm` in closed form (humanoid run and pendulum).
+pub fn task_and_action_norm(action_norm_epsilon: f64) -> Vec<ObjectiveConfig> {
+    vec![
+        ObjectiveConfig { name: "task".into(), epsilon: 0.1, source: ObjectiveSource::Learned },
+        ObjectiveConfig { name: "action_norm".into(), epsilon: action_norm_epsilon, source: ObjectiveSource::ActionNorm },
+    ]
+}
+
+/// `--name value` from the command line.
+pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .map_or(default, |v| v.parse().unwrap_or_else(|_| panic!("{name}: cannot parse {v}")))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+}
+
+/// Runs the benchmark: `--threads N` (default: every core), `--steps N` (default 20);
+/// `--batch B` and `--samples M` change the size for exploration (the default is the
+/// size the benchmark is named for).
+/// Prints `learner_step_ms_median=<ms>` last and returns that median.
+pub fn run(size: StepSize) -> f64 {
+    agent::device::tune_allocator();
+    let threads = agent::device::configure_threads(Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0));
+    let device = agent::device::learner_device();
+    let steps: usize = arg("--steps", 20);
+    let StepSize { name, obs_dim, act_dim, mut cfg } = size;
+    cfg.mpo.batch_size = arg("--batch", cfg.mpo.batch_size);
+    cfg.mpo.num_samples = arg("--samples", cfg.mpo.num_samples);
+    let (t, b) = (cfg.mpo.retrace_length as i64, cfg.mpo.batch_size as i64);
+    let dims = LearnerDims {
+        obs_dim,
+        action: ActionKind::Continuous { dim: act_dim },
+        reward_names: vec!["task".into(), "action_norm".into()],
+        obs_leaves: Vec::new(),
+    };
+    let mut learner = Learner::new(cfg.clone(), dims, device).expect("valid config");
+    tch::manual_seed(0);
+    let opts = (Kind::Float, tch::Device::Cpu);
+    let batch = SnippetBatch {
+        observations: Tensor::randn([t + 1, b, obs_dim], opts),
+        actions: Tensor::randn([t, b, act_dim], opts).clamp(-1.0, 1.0),
+        rewards: Tensor::randn([t, b, 2], opts),
+        discounts: Tensor::ones([t, b], opts),
+        behaviour_log_probs: Tensor::randn([t, b], opts) - 20.0,
+        valid: Tensor::ones([t, b], opts),
+    }
+    .to_device(device);
+    println!(
+        "{name}: obs {obs_dim}, act {act_dim}, B {b}, T {t}, M {}, policy {:?}, critic {:?}, K 2 (task + closed-form action_norm), device {device:?}, threads {threads}",
+        cfg.mpo.num_samples, cfg.network.policy_layers, cfg.network.critic_layers
+    );
+    for _ in 0..3 {
+        learner.step(&batch).expect("step");
+    }
+    let mut totals = Vec::new();
+    let mut phases = [0.0f64; 4];
+    for _ in 0..steps {
+        let start = std::time::Instant::now();
+        let stats = learner.step(&batch).expect("step");
+        totals.push(start.elapsed().as_secs_f64() * 1e3);
+        let p = stats.timings;
+        for (acc, v) in phases.iter_mut().zip([p.policy_evaluation_ms, p.e_step_ms, p.m_step_ms, p.target_update_ms]) {
+            *acc += v;
+        }
+    }
+    let sum: f64 = phases.iter().sum();
+    let names = [
+        "policy evaluation (sampling, target critic x M, Retrace, critic update)",
+        "E-step",
+        "M-step + duals",
+        "target update",
+    ];
+    for (name, v) in names.iter().zip(phases) {
+        println!("  {:>5.1}%  {name}", 100.0 * v / sum);
+    }
+    let ms = median(totals);
+    println!("learner_step_ms_median={ms:.2}");
+    ms
+}
