@@ -25,7 +25,7 @@ for run in "${runs[@]}"; do
     --set "run.runs_dir=\"$work/runs\"" --set run.eval_episodes=1 "$@" >"$work/train.log" 2>&1 \
     || { tail -20 "$work/train.log"; exit 1; }
   dir=$(ls -td "$work"/runs/*/ | head -1)
-  device=$(sed -n 's/.*learner device device=\([A-Za-z0-9()]*\).*/\1/p' "$work/train.log" | head -1)
+  device=$(sed 's/\x1b\[[0-9;]*m//g' "$work/train.log" | sed -n 's/.*learner device device=\([A-Za-z0-9()]*\).*/\1/p' | head -1)
   .venv/bin/python - "$dir" "$config" "$device" <<'PY'
 import json, statistics, sys
 dir, config, device = sys.argv[1:4]

@@ -84,3 +84,39 @@ async fn a_server_restart_during_training_costs_a_reconnect_not_the_run() {
     assert_eq!(summary.env_steps, 6000);
     second.stop().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn time_to_solve_matches_episodes_csv_and_stop_on_solve_ends_the_run_there() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let mut cfg = smoke_config(runs.path());
+    // Every DST episode lasts at most 200 steps, so time >= -200 holds for any policy:
+    // the run counts as solved when its 10th episode ends, whatever was learned.
+    cfg.run.solve_threshold = [("time".to_string(), -200.0)].into();
+    cfg.run.stop_on_solve = true;
+    let s = train(cfg, &[server.address().to_string()], TrainOptions::default()).await.unwrap();
+    let solved = s.solved.clone().expect("solved at the 10th episode");
+    let text = std::fs::read_to_string(s.run_dir.join("episodes.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.last(), Some(&"wall_seconds"));
+    let col = |name: &str| header.iter().position(|c| *c == name).unwrap();
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|v| v.parse().unwrap_or(f64::NAN)).collect()).collect();
+    assert!(rows.len() >= 10, "{} episodes", rows.len());
+    let tenth = &rows[9];
+    assert_eq!(solved.episodes, 10);
+    assert_eq!(solved.env_steps as f64, tenth[col("env_steps")]);
+    for (k, name) in ["return_time", "return_treasure"].iter().enumerate() {
+        let mean = rows[..10].iter().map(|r| r[col(name)]).sum::<f64>() / 10.0;
+        assert!((solved.running_mean[k] - mean).abs() < 1e-9, "{name}: {} vs {mean}", solved.running_mean[k]);
+    }
+    // Both stamps are seconds since train started, taken moments apart.
+    let stamped = tenth[col("wall_seconds")];
+    assert!(solved.wall_seconds >= stamped - 1e-3 && solved.wall_seconds < stamped + 1.0, "{} vs {stamped}", solved.wall_seconds);
+    // stop_on_solve: no env step after the batch that solved it (budget: 8000).
+    assert_eq!(s.env_steps, solved.env_steps);
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(s.run_dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["solved"]["env_steps"].as_u64(), Some(solved.env_steps));
+    assert_eq!(summary["solve_threshold"]["time"].as_f64(), Some(-200.0));
+    server.stop().await.unwrap();
+}
