@@ -2,7 +2,7 @@
 //!
 //! - `config.toml`: the resolved config (what `--resume` reads back);
 //! - `episodes.csv`: one row per finished training episode, with the server's
-//!   undiscounted and discounted vector returns and the seconds since `train` started;
+//!   undiscounted and discounted vector returns and the seconds since training began;
 //! - `learner.jsonl`: learner statistics every `log_period` learner steps;
 //! - `checkpoints/`, `summary.json`, `curves.{png,svg}` (written by `train`).
 
@@ -32,7 +32,7 @@ pub struct EpisodeRecord {
     pub actor: usize,
     /// The server's summary.
     pub episode: EpisodeSummary,
-    /// Seconds since this `train` invocation started.
+    /// Seconds since this `train` invocation began training (`Schedule::elapsed_seconds`).
     pub wall_seconds: f64,
 }
 

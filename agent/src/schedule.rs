@@ -84,7 +84,8 @@ pub struct Schedule {
     /// Learner steps already done when the replay was made (resumed runs), so that an
     /// on-policy budget counts only this invocation's unrolls.
     learner_steps_at_start: u64,
-    /// When this invocation started (wall-clock stamps of episodes and "solved").
+    /// When this invocation's actor-learner loop was set up (wall-clock stamps of
+    /// episodes and of "solved").
     started: Instant,
 }
 
@@ -102,7 +103,8 @@ impl Schedule {
         }
     }
 
-    /// Seconds since the schedule was made (the start of this `train` invocation).
+    /// Seconds since the schedule was made: the start of this `train` invocation's
+    /// training, after the learner is built and before the first env step.
     pub fn elapsed_seconds(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
     }

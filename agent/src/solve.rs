@@ -17,7 +17,7 @@ pub const SOLVE_WINDOW: usize = 10;
 pub struct SolveRecord {
     /// Env steps (summed over instances) when the deciding episode ended.
     pub env_steps: u64,
-    /// Seconds since this `train` invocation started.
+    /// Seconds since this `train` invocation began training (`Schedule::elapsed_seconds`).
     pub wall_seconds: f64,
     /// Training episodes finished by then.
     pub episodes: u64,
