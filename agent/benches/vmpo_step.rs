@@ -14,6 +14,8 @@
 //! Run: `cargo bench -p agent --bench vmpo_step [-- --batch 128 --steps 10]`.
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
+mod common;
+
 use agent::algo::{Learner, LearnerDims, SnippetBatch};
 use agent::config::{Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
 use agent::nets::{ActionKind, ObsLeaf};
@@ -23,14 +25,6 @@ const OBJECTIVES: [&str; 5] = ["com", "vel", "app", "quat", "trunc"];
 const REFERENCE: i64 = 2490;
 const PROPRIO: i64 = 232;
 const ACT: i64 = 56;
-
-fn arg(name: &str, default: usize) -> usize {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .map_or(default, |v| v.parse().unwrap_or_else(|_| panic!("{name} takes an integer, got {v}")))
-}
 
 fn main() {
     agent::device::tune_allocator();
@@ -57,8 +51,8 @@ fn main() {
         },
         ..LearnerConfig::default()
     };
-    cfg.vmpo.batch_size = arg("--batch", 128);
-    let steps = arg("--steps", 10);
+    cfg.vmpo.batch_size = common::arg("--batch", 128);
+    let steps: usize = common::arg("--steps", 10);
     let dims = LearnerDims {
         obs_dim: REFERENCE + PROPRIO,
         action: ActionKind::Continuous { dim: ACT },
@@ -82,26 +76,7 @@ fn main() {
     }
     .to_device(device);
     println!("vmpo_step: obs {}, act {ACT}, B {b}, T {t}, K 5, mocap policy and critics, device {device:?}, threads {threads}", REFERENCE + PROPRIO);
-    for _ in 0..2 {
-        learner.step(&batch).expect("step");
-    }
-    let mut totals = Vec::new();
-    let mut phases = [0.0f64; 4];
-    for _ in 0..steps {
-        let start = std::time::Instant::now();
-        let p = learner.step(&batch).expect("step").timings;
-        totals.push(start.elapsed().as_secs_f64() * 1e3);
-        for (acc, v) in phases.iter_mut().zip([p.policy_evaluation_ms, p.e_step_ms, p.m_step_ms, p.target_update_ms]) {
-            *acc += v;
-        }
-    }
-    let sum: f64 = phases.iter().sum();
-    for (name, v) in ["policy evaluation (values, targets, critic update)", "step 1 (top-k, weights, duals)", "step 2 (policy fit) + duals", "target update"]
-        .iter()
-        .zip(phases)
-    {
-        println!("  {:>5.1}%  {name}", 100.0 * v / sum);
-    }
-    totals.sort_by(f64::total_cmp);
-    println!("vmpo_step_ms_median={:.1}", totals[totals.len() / 2]);
+    let names = ["policy evaluation (values, targets, critic update)", "step 1 (top-k, weights, duals)", "step 2 (policy fit) + duals", "target update"];
+    let totals = common::time_steps(&mut learner, &batch, 2, steps, names);
+    println!("vmpo_step_ms_median={:.1}", common::median(totals));
 }

@@ -1,6 +1,8 @@
-//! The MO-MPO learner-step benchmark shared by `learner_step` (humanoid size, Table 3)
-//! and `learner_step_pendulum` (the pendulum preset's size): one full step on a fixed
-//! random batch, timed as the median of `--steps` steps after 3 warm-up steps, with
+#![allow(dead_code, unreachable_pub, reason = "each benchmark uses a subset")]
+//! The learner-step benchmarks' shared parts: `learner_step` (humanoid size, Table 3)
+//! and `learner_step_pendulum` (the old pendulum preset's size) run one full MO-MPO
+//! step on a fixed random batch through `run`; `vmpo_step` uses `time_steps` and
+//! `arg`. A step is timed as the median of `--steps` steps after warm-up steps, with
 //! the share of each phase.
 
 use agent::algo::{Learner, LearnerDims, SnippetBatch};
@@ -37,10 +39,35 @@ pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
         .map_or(default, |v| v.parse().unwrap_or_else(|_| panic!("{name}: cannot parse {v}")))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// The median of `v`.
+pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
     if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+}
+
+/// Times `steps` learner steps on `batch` after `warmup` untimed ones, prints each
+/// phase's share of the time (`names` in `PhaseTimings` order) and returns the step
+/// times in ms.
+pub fn time_steps(learner: &mut Learner, batch: &SnippetBatch, warmup: usize, steps: usize, names: [&str; 4]) -> Vec<f64> {
+    for _ in 0..warmup {
+        learner.step(batch).expect("step");
+    }
+    let mut totals = Vec::new();
+    let mut phases = [0.0f64; 4];
+    for _ in 0..steps {
+        let start = std::time::Instant::now();
+        let p = learner.step(batch).expect("step").timings;
+        totals.push(start.elapsed().as_secs_f64() * 1e3);
+        for (acc, v) in phases.iter_mut().zip([p.policy_evaluation_ms, p.e_step_ms, p.m_step_ms, p.target_update_ms]) {
+            *acc += v;
+        }
+    }
+    let sum: f64 = phases.iter().sum();
+    for (name, v) in names.iter().zip(phases) {
+        println!("  {:>5.1}%  {name}", 100.0 * v / sum);
+    }
+    totals
 }
 
 /// Runs the benchmark: `--threads N` (default: every core), `--steps N` (default 20);
@@ -78,30 +105,13 @@ pub fn run(size: StepSize) -> f64 {
         "{name}: obs {obs_dim}, act {act_dim}, B {b}, T {t}, M {}, policy {:?}, critic {:?}, K 2 (task + closed-form action_norm), device {device:?}, threads {threads}",
         cfg.mpo.num_samples, cfg.network.policy_layers, cfg.network.critic_layers
     );
-    for _ in 0..3 {
-        learner.step(&batch).expect("step");
-    }
-    let mut totals = Vec::new();
-    let mut phases = [0.0f64; 4];
-    for _ in 0..steps {
-        let start = std::time::Instant::now();
-        let stats = learner.step(&batch).expect("step");
-        totals.push(start.elapsed().as_secs_f64() * 1e3);
-        let p = stats.timings;
-        for (acc, v) in phases.iter_mut().zip([p.policy_evaluation_ms, p.e_step_ms, p.m_step_ms, p.target_update_ms]) {
-            *acc += v;
-        }
-    }
-    let sum: f64 = phases.iter().sum();
     let names = [
         "policy evaluation (sampling, target critic x M, Retrace, critic update)",
         "E-step",
         "M-step + duals",
         "target update",
     ];
-    for (name, v) in names.iter().zip(phases) {
-        println!("  {:>5.1}%  {name}", 100.0 * v / sum);
-    }
+    let totals = time_steps(&mut learner, &batch, 3, steps, names);
     let ms = median(totals);
     println!("learner_step_ms_median={ms:.2}");
     ms
