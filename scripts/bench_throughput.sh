@@ -25,10 +25,10 @@ for run in "${runs[@]}"; do
     --set "run.runs_dir=\"$work/runs\"" --set run.eval_episodes=1 "$@" >"$work/train.log" 2>&1 \
     || { tail -20 "$work/train.log"; exit 1; }
   dir=$(ls -td "$work"/runs/*/ | head -1)
-  device=$(sed 's/\x1b\[[0-9;]*m//g' "$work/train.log" | sed -n 's/.*learner device device=\([A-Za-z0-9()]*\).*/\1/p' | head -1)
-  .venv/bin/python - "$dir" "$config" "$device" <<'PY'
+  .venv/bin/python - "$dir" "$config" <<'PY'
 import json, statistics, sys
-dir, config, device = sys.argv[1:4]
+dir, config = sys.argv[1:3]
+device = json.load(open(f"{dir}/summary.json"))["learner_device"]
 r = [json.loads(l) for l in open(f"{dir}/learner.jsonl")]
 a, b = r[0], r[-1]
 dt = b["wall_seconds"] - a["wall_seconds"]

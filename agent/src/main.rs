@@ -216,7 +216,10 @@ async fn server_addresses(configured: &[String]) -> Result<(Vec<String>, Option<
 fn print_summary(s: &TrainSummary) {
     let names = s.objectives.join(", ");
     println!("\nrun {}", s.run_dir.display());
-    println!("  env steps {}  learner steps {}  episodes {}  wall {:.1} s", s.env_steps, s.learner_steps, s.episodes, s.wall_seconds);
+    println!(
+        "  env steps {}  learner steps {}  episodes {}  wall {:.1} s  learner on {}",
+        s.env_steps, s.learner_steps, s.episodes, s.wall_seconds, s.learner_device
+    );
     println!("  objectives             [{names}]");
     println!("  recent training return {}", format_vector(&s.recent_train_return));
     let eta: Vec<f64> = s.temperature.iter().map(|&t| f64::from(t)).collect();

@@ -107,6 +107,8 @@ pub struct TrainSummary {
     pub eval_discounted_return: Vec<f64>,
     /// The discount of `eval_discounted_return`.
     pub eval_discount: f64,
+    /// Where the learner ran (`learner.device` resolved: `Cpu` or `Cuda(i)`).
+    pub learner_device: String,
     /// `run.solve_threshold`: returns that count as solved, by objective.
     pub solve_threshold: std::collections::BTreeMap<String, f64>,
     /// When the mean of the last 10 training episodes first reached every threshold
@@ -124,7 +126,6 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
     let device = choose_device(&cfg.learner, &dims)?;
-    tracing::info!(?device, "learner device");
     let (run_dir, learner, counters) = match &options.resume {
         Some(dir) => {
             let (ckpt, progress) = latest_checkpoint(dir)?;
@@ -282,6 +283,7 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
         eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
         eval_discount: spec.discount,
         eval_episodes: eval,
+        learner_device: format!("{device:?}"),
         solve_threshold: cfg.run.solve_threshold.clone(),
         solved: schedule.solved(),
     };
