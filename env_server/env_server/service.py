@@ -18,6 +18,7 @@ import concurrent.futures
 import functools
 import json
 import logging
+import sys
 import threading
 import time
 from typing import Any, Protocol, Sequence
@@ -235,8 +236,7 @@ class EnvService:
             session = self.sessions.get(session_id)
             if session is None:
                 self._session(session_id)
-            dtype_name = wire.PB_TO_DTYPE.get(dtype) or pb.DType.Name(dtype)
-            return self._encoders[session_id].encode(session.step(dtype_name, shape, data))
+            return self._encoders[session_id].encode(session.step(_dtype_name(dtype), shape, data))
 
     def open_stream(self) -> "StreamSteps":
         return StreamSteps(self)
@@ -273,13 +273,35 @@ def _close_orphan(future: asyncio.Future) -> None:
         future.result().close()
 
 
+def _dtype_name(dtype: int) -> str:
+    """The action tensor's dtype name; a number that is no DType value is the client's error."""
+    name = wire.PB_TO_DTYPE.get(dtype)
+    if name is not None:
+        return name
+    if dtype in pb.DType.values():
+        return pb.DType.Name(dtype)
+    raise InvalidArgument(f"action.dtype: expected a mo_env.v1.DType value {sorted(pb.DType.values())}, got {dtype}")
+
+
+def _quote(text: str, limit: int = 64) -> str:
+    """`text` for an error message: repr of at most `limit` characters, and its length when cut,
+    so that a huge client value cannot swell the status past the metadata limit."""
+    if len(text) <= limit:
+        return repr(text)
+    return f"{text[:limit]!r}... ({len(text)} characters)"
+
+
 def _parse_kwargs(kwargs_json: str) -> dict[str, Any]:
     if not kwargs_json:
         return {}
     try:
         kwargs = json.loads(kwargs_json)
     except json.JSONDecodeError as exc:
-        raise InvalidArgument(f"kwargs_json: expected a JSON object, got invalid JSON {kwargs_json!r}: {exc}") from exc
+        raise InvalidArgument(f"kwargs_json: expected a JSON object, got invalid JSON {_quote(kwargs_json)}: {exc}") from exc
+    except RecursionError as exc:
+        raise InvalidArgument(
+            f"kwargs_json: expected a JSON object nested at most about {sys.getrecursionlimit()} deep, got {_quote(kwargs_json)}"
+        ) from exc
     if not isinstance(kwargs, dict):
-        raise InvalidArgument(f"kwargs_json: expected a JSON object, got {type(kwargs).__name__} {kwargs_json!r}")
+        raise InvalidArgument(f"kwargs_json: expected a JSON object, got {type(kwargs).__name__} {_quote(kwargs_json)}")
     return kwargs

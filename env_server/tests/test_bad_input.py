@@ -133,6 +133,27 @@ def test_bad_kwargs_json(stub, text) -> None:
     assert "kwargs_json: expected a JSON object" in err.details() and text in err.details()
 
 
+def test_deeply_nested_kwargs_json_is_the_clients_error(stub, humanoid) -> None:
+    depth = 100_000
+    text = '{"a":' * depth + "1" + "}" * depth
+    err = rpc_error(make, stub, "dst", 1, kwargs_json=text)
+    assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert err.details().startswith("kwargs_json: expected a JSON object nested at most"), err.details()[:200]
+    # The message quotes a short prefix of the 600 kB value, not all of it.
+    assert len(err.details()) < 300 and f"({len(text)} characters)" in err.details()
+    test_valid_step_still_works(stub, humanoid)
+
+
+@pytest.mark.parametrize("dtype", [99, 20, 36, 68])
+def test_unknown_action_dtype_number(stub, humanoid, dtype) -> None:
+    tensor = pb.Tensor(dtype=dtype, shape=[2, 21], data=b"\0" * 168)
+    err = rpc_error(stub.Step, pb.StepRequest(session_id=humanoid, action=tensor))
+    assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert err.details().startswith("action.dtype: expected a mo_env.v1.DType value")
+    assert err.details().endswith(f"got {dtype}")
+    test_valid_step_still_works(stub, humanoid)
+
+
 def test_unknown_kwarg(stub) -> None:
     err = rpc_error(make, stub, "dst", 1, kwargs_json=json.dumps({"size": 3}))
     assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
