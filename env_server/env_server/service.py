@@ -28,7 +28,7 @@ from env_server import wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted
 from env_server.registry import Registry
-from env_server.session import Autoreset, Session, make_session
+from env_server.session import Autoreset, Session, check_seed_range, make_session
 
 log = logging.getLogger(__name__)
 
@@ -161,6 +161,8 @@ class EnvService:
                 f"got {request.num_workers}"
             )
         kwargs = _parse_kwargs(request.kwargs_json)
+        if request.HasField("seed"):
+            check_seed_range("seed", [request.seed, request.seed + request.num_envs - 1])
         autoreset = _AUTORESET.get(request.autoreset_mode)
         if autoreset is None:
             raise InvalidArgument(f"autoreset_mode: expected one of {sorted(_AUTORESET)}, got {request.autoreset_mode}")

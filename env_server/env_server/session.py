@@ -47,6 +47,20 @@ class Autoreset(enum.IntEnum):
     DISABLED = 3
 
 
+SEED_LIMIT = 2**32
+"""Instance seeds must be below this: dm_control and NumPy's legacy RandomState take 32-bit
+seeds, so one range for every env keeps a seed's meaning the same across envs."""
+
+
+def check_seed_range(field: str, seeds: Sequence[int]) -> None:
+    """Refuses instance seeds outside [0, 2**32) before any instance is touched."""
+    bad = [s for s in seeds if not 0 <= s < SEED_LIMIT]
+    if bad:
+        raise InvalidArgument(
+            f"{field}: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got {bad[0]}"
+        )
+
+
 @dataclasses.dataclass(frozen=True)
 class SessionSpec:
     """Everything a client needs to know about a session (the EnvSpec)."""
@@ -248,6 +262,7 @@ class Session:
             per = [int(s) for s in seeds]
         else:
             raise InvalidArgument(f"seeds: expected 0, 1 or {n} values (one per reset instance), got {len(seeds)}")
+        check_seed_range("seeds", [s for s in per if s is not None])
         bufs = [np.zeros((n, *leaf.shape), leaf.dtype) for leaf in self.leaves]
         outcomes = self._run((), list(zip(indices, per))).resets
         infos = [out.info for out in outcomes]

@@ -154,6 +154,31 @@ def test_unknown_action_dtype_number(stub, humanoid, dtype) -> None:
     test_valid_step_still_works(stub, humanoid)
 
 
+@pytest.fixture(scope="module")
+def dmc(stub) -> str:
+    """A reset dm_control session of 2 instances (32-bit seeds)."""
+    session_id = make(stub, "dmc:cartpole-balance", 2, seed=0).session_id
+    stub.Reset(pb.ResetRequest(session_id=session_id))
+    return session_id
+
+
+@pytest.mark.parametrize("seeds", [[2**32], [2**32 - 1], [0, 2**64 - 1]])
+def test_seed_outside_32_bits_is_refused_and_the_session_keeps_working(stub, dmc, seeds) -> None:
+    # [2**32 - 1] alone is fine for instance 0 but gives instance 1 the seed 2**32.
+    err = rpc_error(stub.Reset, pb.ResetRequest(session_id=dmc, seeds=seeds))
+    assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert err.details().startswith("seeds: expected instance seeds in [0, 2**32)"), err.details()
+    response = step(stub, dmc, np.zeros((2, 1), np.float32))
+    assert list(response.reward.shape) == [2, 1]
+    stub.Reset(pb.ResetRequest(session_id=dmc, seeds=[2**32 - 2]))
+
+
+def test_make_seed_outside_32_bits(stub) -> None:
+    err = rpc_error(make, stub, "dst", 3, seed=2**32 - 2)
+    assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert err.details() == "seed: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got 4294967296"
+
+
 def test_unknown_kwarg(stub) -> None:
     err = rpc_error(make, stub, "dst", 1, kwargs_json=json.dumps({"size": 3}))
     assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
