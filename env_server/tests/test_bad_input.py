@@ -179,6 +179,20 @@ def test_make_seed_outside_32_bits(stub) -> None:
     assert err.details() == "seed: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got 4294967296"
 
 
+@pytest.mark.parametrize("env_id", ["pendulum", "gym:Pendulum-v1"])
+def test_kwarg_of_the_wrong_type_fails_at_make(stub, env_id) -> None:
+    err = rpc_error(make, stub, env_id, 1, kwargs_json=json.dumps({"g": "x"}))
+    assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert err.details() == (
+        "kwargs_json: env 'Pendulum-v1' keyword 'g' expects a float (its default is 10.0), got 'x'"
+    )
+    for good in (9.81, 9):
+        session_id = make(stub, env_id, 1, kwargs_json=json.dumps({"g": good})).session_id
+        stub.Reset(pb.ResetRequest(session_id=session_id))
+        step(stub, session_id, np.zeros((1, 1), np.float32))
+        stub.Close(pb.CloseRequest(session_id=session_id))
+
+
 def test_unknown_kwarg(stub) -> None:
     err = rpc_error(make, stub, "dst", 1, kwargs_json=json.dumps({"size": 3}))
     assert err.code() == grpc.StatusCode.INVALID_ARGUMENT

@@ -2,11 +2,47 @@
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import numpy as np
 
+from env_server.errors import InvalidArgument
 from env_server.task import Objective, StepOutcome, Task
+
+
+def check_kwarg_types(gym_id: str, kwargs: dict[str, Any]) -> None:
+    """Refuses, at Make, a keyword whose value cannot be of the type of the env class's
+    default (a str where the default is a float, ...): gymnasium stores such values and
+    the env fails on its first step instead. Keywords without a plain scalar default
+    (None, tuples, callables) pass unchecked."""
+    import gymnasium
+    from gymnasium.envs.registration import load_env_creator
+
+    entry = gymnasium.spec(gym_id).entry_point
+    creator = load_env_creator(entry) if isinstance(entry, str) else entry
+    try:
+        params = inspect.signature(creator).parameters
+    except (TypeError, ValueError):
+        return
+    for name, value in kwargs.items():
+        param = params.get(name)
+        default = param.default if param is not None else inspect.Parameter.empty
+        if isinstance(default, bool):
+            ok, want = isinstance(value, bool), "a boolean"
+        elif isinstance(default, (int, float)):
+            allowed = int if isinstance(default, int) else (int, float)
+            ok, want = isinstance(value, allowed) and not isinstance(value, bool), f"a {type(default).__name__}"
+        elif isinstance(default, str):
+            ok, want = isinstance(value, str), "a string"
+        else:
+            continue
+        if not ok:
+            shown = repr(value)
+            shown = shown if len(shown) <= 64 else shown[:64] + "..."
+            raise InvalidArgument(
+                f"kwargs_json: env '{gym_id}' keyword '{name}' expects {want} (its default is {default!r}), got {shown}"
+            )
 
 
 class GymTask(Task):
@@ -22,6 +58,7 @@ class GymTask(Task):
     def __init__(self, gym_id: str, **kwargs: Any) -> None:
         import gymnasium
 
+        check_kwarg_types(gym_id, kwargs)
         self.env = gymnasium.make(gym_id, **kwargs)
         self.observation_space = self.env.observation_space
         self.action_space = self.env.action_space
