@@ -25,6 +25,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod device;
 pub mod env;
+pub mod eval;
 pub mod error;
 pub mod learner;
 pub mod metrics;

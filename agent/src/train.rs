@@ -12,10 +12,11 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
-use tch::{Device, Tensor};
+use tch::Device;
 use tokio::sync::watch;
 
-use crate::actor::{ActionMap, ActorContext, run_actor};
+use crate::actor::{ActorContext, run_actor};
+use crate::eval::evaluate;
 use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
@@ -292,13 +293,13 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     Ok(summary)
 }
 
-fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
+pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
     let rows: Vec<&Vec<f64>> = rows.collect();
     let k = rows.first().map_or(0, |r| r.len());
     (0..k).map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64).collect()
 }
 
-async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, EnvError> {
+pub(crate) async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, EnvError> {
     let mut clients = Vec::new();
     for address in addresses {
         clients.push(EnvClient::connect(address).await?);
@@ -309,12 +310,12 @@ async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, EnvError> {
     Ok(clients)
 }
 
-fn make_options(cfg: &TrainConfig, num_envs: usize, seed: u64) -> MakeOptions {
+pub(crate) fn make_options(cfg: &TrainConfig, num_envs: usize, seed: u64) -> MakeOptions {
     MakeOptions { kwargs: cfg.env.kwargs.clone(), seed: Some(seed), ..MakeOptions::new(&cfg.env.id, num_envs) }
 }
 
 /// The env's spec, from a one-instance session made and closed at once.
-async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<EnvSpec, EnvError> {
+pub(crate) async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<EnvSpec, EnvError> {
     let env = client.make(&make_options(cfg, 1, cfg.seed)).await?;
     let spec = env.spec().clone();
     env.close().await?;
@@ -350,29 +351,6 @@ fn progress_message(c: &Counters, names: &[String], stats: Option<&crate::algo::
     msg
 }
 
-/// Run the deterministic policy until `episodes` episodes finish; the server's summaries.
-pub async fn evaluate(client: &EnvClient, cfg: &TrainConfig, policy: ActorPolicy, episodes: usize) -> Result<Vec<EpisodeSummary>, EnvError> {
-    let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
-    // Seeds disjoint from the training sessions'.
-    let mut env = client.make(&make_options(cfg, num_envs, cfg.seed + 1_000_000)).await?;
-    env.use_stream();
-    let map = ActionMap::new(&env.spec().action_space)?;
-    let o = env.spec().observation_space.flat_dim();
-    let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
-    let mut done = Vec::new();
-    while done.len() < episodes {
-        let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
-        let out = tch::no_grad(|| policy.act(&obs_t, true));
-        let (action, _) = map.apply(&out.actions, num_envs);
-        let step = env.step(&action).await?;
-        done.extend(step.episodes);
-        obs = step.observation.to_flat_f32();
-    }
-    done.truncate(episodes);
-    env.close().await?;
-    Ok(done)
-}
-
 /// Learning curves from `episodes.csv`: per objective, the running mean (20 episodes)
 /// of the undiscounted return against env steps.
 fn plot_curves(run_dir: &Path, objectives: &[String]) -> Result<(), TrainError> {
@@ -405,49 +383,4 @@ fn plot_curves(run_dir: &Path, objectives: &[String]) -> Result<(), TrainError> 
     };
     crate::plot::save(&figure, &run_dir.join("curves"))?;
     Ok(())
-}
-
-/// What `agent eval` reports.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct EvalReport {
-    /// The checkpoint evaluated.
-    pub checkpoint: PathBuf,
-    /// Objective names in reward order.
-    pub objectives: Vec<String>,
-    /// The server's per-episode summaries.
-    pub episodes: Vec<EpisodeSummary>,
-    /// Mean undiscounted return.
-    pub mean_return: Vec<f64>,
-    /// Mean discounted return.
-    pub mean_discounted_return: Vec<f64>,
-    /// γ of the discounted returns.
-    pub discount: f64,
-}
-
-/// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
-/// `checkpoints/step_<n>` directory) with the deterministic policy.
-pub async fn evaluate_checkpoint(path: &Path, addresses: &[String], episodes: usize) -> Result<EvalReport, TrainError> {
-    let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
-        (path.to_path_buf(), latest_checkpoint(path)?.0)
-    } else {
-        let run_dir = path.parent().and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
-        (run_dir, path.to_path_buf())
-    };
-    let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
-    let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
-    let dims = learner.dims().clone();
-    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
-    policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
-    let clients = connect_all(addresses).await?;
-    let spec = probe_spec(&clients[0], &cfg).await?;
-    drop(learner);
-    let done = evaluate(&clients[0], &cfg, policy, episodes).await?;
-    Ok(EvalReport {
-        checkpoint: ckpt,
-        objectives: spec.objectives.iter().map(|o| o.name.clone()).collect(),
-        mean_return: mean_of(done.iter().map(|e| &e.episode_return)),
-        mean_discounted_return: mean_of(done.iter().map(|e| &e.discounted_return)),
-        discount: spec.discount,
-        episodes: done,
-    })
 }

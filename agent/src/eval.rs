@@ -1,0 +1,86 @@
+//! Evaluation of a deterministic policy through the server (the end of `train` and of
+//! every sweep run, and `agent eval` on a checkpoint): the server reports each episode's
+//! undiscounted and discounted vector returns, so every client is evaluated alike.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use tch::{Device, Tensor};
+
+use crate::actor::ActionMap;
+use crate::algo::Learner;
+use crate::env::grpc::EnvClient;
+use crate::env::{Env, EpisodeSummary};
+use crate::error::EnvError;
+use crate::learner::latest_checkpoint;
+use crate::nets::ActorPolicy;
+use crate::run_config::TrainConfig;
+use crate::train::{TrainError, connect_all, make_options, mean_of, probe_spec};
+
+/// Run the deterministic policy until `episodes` episodes finish; the server's summaries.
+pub async fn evaluate(client: &EnvClient, cfg: &TrainConfig, policy: ActorPolicy, episodes: usize) -> Result<Vec<EpisodeSummary>, EnvError> {
+    let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
+    // Seeds disjoint from the training sessions'.
+    let mut env = client.make(&make_options(cfg, num_envs, cfg.seed + 1_000_000)).await?;
+    env.use_stream();
+    let map = ActionMap::new(&env.spec().action_space)?;
+    let o = env.spec().observation_space.flat_dim();
+    let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
+    let mut done = Vec::new();
+    while done.len() < episodes {
+        let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
+        let out = tch::no_grad(|| policy.act(&obs_t, true));
+        let (action, _) = map.apply(&out.actions, num_envs);
+        let step = env.step(&action).await?;
+        done.extend(step.episodes);
+        obs = step.observation.to_flat_f32();
+    }
+    done.truncate(episodes);
+    env.close().await?;
+    Ok(done)
+}
+
+/// What `agent eval` reports.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EvalReport {
+    /// The checkpoint evaluated.
+    pub checkpoint: PathBuf,
+    /// Objective names in reward order.
+    pub objectives: Vec<String>,
+    /// The server's per-episode summaries.
+    pub episodes: Vec<EpisodeSummary>,
+    /// Mean undiscounted return.
+    pub mean_return: Vec<f64>,
+    /// Mean discounted return.
+    pub mean_discounted_return: Vec<f64>,
+    /// γ of the discounted returns.
+    pub discount: f64,
+}
+
+/// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
+/// `checkpoints/step_<n>` directory) with the deterministic policy.
+pub async fn evaluate_checkpoint(path: &Path, addresses: &[String], episodes: usize) -> Result<EvalReport, TrainError> {
+    let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
+        (path.to_path_buf(), latest_checkpoint(path)?.0)
+    } else {
+        let run_dir = path.parent().and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
+        (run_dir, path.to_path_buf())
+    };
+    let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
+    let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
+    let dims = learner.dims().clone();
+    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
+    policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+    let clients = connect_all(addresses).await?;
+    let spec = probe_spec(&clients[0], &cfg).await?;
+    drop(learner);
+    let done = evaluate(&clients[0], &cfg, policy, episodes).await?;
+    Ok(EvalReport {
+        checkpoint: ckpt,
+        objectives: spec.objectives.iter().map(|o| o.name.clone()).collect(),
+        mean_return: mean_of(done.iter().map(|e| &e.episode_return)),
+        mean_discounted_return: mean_of(done.iter().map(|e| &e.discounted_return)),
+        discount: spec.discount,
+        episodes: done,
+    })
+}
