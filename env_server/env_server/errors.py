@@ -7,6 +7,22 @@ field was wrong, what was expected and what arrived.
 
 from __future__ import annotations
 
+from typing import Any
+
+QUOTE_LIMIT = 64
+"""Characters of a client's value that an error message quotes (gRPC carries the message
+in trailing metadata, which clients cap at 8-16 KiB, so a message that echoed a
+megabyte of input would be replaced by a RESOURCE_EXHAUSTED of its own)."""
+
+
+def quote(value: Any, limit: int = QUOTE_LIMIT) -> str:
+    """repr(value) for an error message: at most `limit` characters, with the full length
+    said when cut."""
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({len(text)} characters)"
+
 
 class EnvServerError(Exception):
     """Base class; `code` is the name of the gRPC status code this error becomes."""

@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import gymnasium
 
 from env_server import spaces
-from env_server.errors import EnvServerError, Internal, InvalidArgument, SimulatorError
+from env_server.errors import EnvServerError, Internal, InvalidArgument, SimulatorError, quote
 from env_server.registry import EnvEntry, construct
 from env_server.task import Objective, StepOutcome, Task
 
@@ -396,7 +396,7 @@ def build_instances(
 def _check_info_keys(env_id: str, available: tuple[str, ...], info_keys: Sequence[str]) -> None:
     unknown = [key for key in info_keys if key not in available]
     if unknown:
-        raise InvalidArgument(f"info_keys: env '{env_id}' cannot report {unknown}; available: {list(available)}")
+        raise InvalidArgument(f"info_keys: env '{env_id}' cannot report {quote(unknown)}; available: {list(available)}")
 
 
 def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:

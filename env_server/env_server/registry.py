@@ -21,7 +21,7 @@ import importlib.metadata
 import inspect
 from typing import Any, Callable, Iterable, Mapping
 
-from env_server.errors import InvalidArgument, NotFound
+from env_server.errors import QUOTE_LIMIT, InvalidArgument, NotFound, quote
 from env_server.task import Objective, Task
 
 ENTRY_POINT_GROUP = "env_server.envs"
@@ -53,6 +53,8 @@ class Prefix:
 
 
 def _near(name: str, candidates: Iterable[str]) -> str:
+    if len(name) > QUOTE_LIMIT:  # no id is that long, and difflib is quadratic
+        return ""
     close = difflib.get_close_matches(name, list(candidates), n=5, cutoff=0.5)
     return f"; did you mean {', '.join(close)}?" if close else ""
 
@@ -63,7 +65,7 @@ def _resolve_gym(rest: str) -> Callable[..., Task]:
     from env_server.backends.gymnasium import GymTask
 
     if rest not in gymnasium.registry:
-        raise NotFound(f"env_id: unknown gymnasium id 'gym:{rest}'{_near(rest, gymnasium.registry)}")
+        raise NotFound(f"env_id: unknown gymnasium id {quote('gym:' + rest)}{_near(rest, gymnasium.registry)}")
     return functools.partial(GymTask, rest)
 
 
@@ -74,7 +76,7 @@ def _resolve_mo(rest: str) -> Callable[..., Task]:
     from env_server.backends.mo_gymnasium import MoGymTask
 
     if rest not in gymnasium.registry:
-        raise NotFound(f"env_id: unknown MO-Gymnasium id 'mo:{rest}'{_near(rest, gymnasium.registry)}")
+        raise NotFound(f"env_id: unknown MO-Gymnasium id {quote('mo:' + rest)}{_near(rest, gymnasium.registry)}")
     return functools.partial(MoGymTask, rest)
 
 
@@ -86,7 +88,7 @@ def _resolve_dmc(rest: str) -> Callable[..., Task]:
     domain, _, task = rest.partition("-")
     known = [f"{d}-{t}" for d, t in suite.ALL_TASKS]
     if (domain, task) not in suite.ALL_TASKS:
-        raise NotFound(f"env_id: unknown dm_control task 'dmc:{rest}' (expected dmc:<domain>-<task>){_near(rest, known)}")
+        raise NotFound(f"env_id: unknown dm_control task {quote('dmc:' + rest)} (expected dmc:<domain>-<task>){_near(rest, known)}")
     return functools.partial(DmcTask, domain, task)
 
 
@@ -157,7 +159,7 @@ class Registry:
         hint = _near(env_id, self._entries)
         known = ", ".join(sorted(self._entries))
         patterns = ", ".join(p.pattern for p in self.prefixes)
-        raise NotFound(f"env_id: unknown env '{env_id}'{hint} (known: {known}; or one of {patterns})")
+        raise NotFound(f"env_id: unknown env {quote(env_id)}{hint} (known: {known}; or one of {patterns})")
 
 
 def construct(entry: EnvEntry, kwargs: Mapping[str, Any]) -> Task:
@@ -169,7 +171,7 @@ def construct(entry: EnvEntry, kwargs: Mapping[str, Any]) -> Task:
             for name in kwargs:
                 if name not in accepted:
                     raise InvalidArgument(
-                        f"kwargs_json: env '{entry.env_id}' has no keyword argument '{name}'; accepted: {accepted}"
+                        f"kwargs_json: env '{entry.env_id}' has no keyword argument {quote(name)}; accepted: {accepted}"
                     )
     try:
         return entry.factory(**kwargs)
@@ -177,5 +179,5 @@ def construct(entry: EnvEntry, kwargs: Mapping[str, Any]) -> Task:
         if not kwargs:
             raise
         raise InvalidArgument(
-            f"kwargs_json: env '{entry.env_id}' rejected keyword arguments {sorted(kwargs)}: {exc}"
+            f"kwargs_json: env '{entry.env_id}' rejected keyword arguments {quote(sorted(kwargs))}: {quote(str(exc), 200)}"
         ) from exc

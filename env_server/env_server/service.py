@@ -26,7 +26,7 @@ from typing import Any, Protocol, Sequence
 import env_server
 from env_server import wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
-from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted
+from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
 from env_server.registry import Registry
 from env_server.session import Autoreset, Session, check_seed_range, make_session
 
@@ -285,25 +285,17 @@ def _dtype_name(dtype: int) -> str:
     raise InvalidArgument(f"action.dtype: expected a mo_env.v1.DType value {sorted(pb.DType.values())}, got {dtype}")
 
 
-def _quote(text: str, limit: int = 64) -> str:
-    """`text` for an error message: repr of at most `limit` characters, and its length when cut,
-    so that a huge client value cannot swell the status past the metadata limit."""
-    if len(text) <= limit:
-        return repr(text)
-    return f"{text[:limit]!r}... ({len(text)} characters)"
-
-
 def _parse_kwargs(kwargs_json: str) -> dict[str, Any]:
     if not kwargs_json:
         return {}
     try:
         kwargs = json.loads(kwargs_json)
     except json.JSONDecodeError as exc:
-        raise InvalidArgument(f"kwargs_json: expected a JSON object, got invalid JSON {_quote(kwargs_json)}: {exc}") from exc
+        raise InvalidArgument(f"kwargs_json: expected a JSON object, got invalid JSON {quote(kwargs_json)}: {exc}") from exc
     except RecursionError as exc:
         raise InvalidArgument(
-            f"kwargs_json: expected a JSON object nested at most about {sys.getrecursionlimit()} deep, got {_quote(kwargs_json)}"
+            f"kwargs_json: expected a JSON object nested at most about {sys.getrecursionlimit()} deep, got {quote(kwargs_json)}"
         ) from exc
     if not isinstance(kwargs, dict):
-        raise InvalidArgument(f"kwargs_json: expected a JSON object, got {type(kwargs).__name__} {_quote(kwargs_json)}")
+        raise InvalidArgument(f"kwargs_json: expected a JSON object, got {type(kwargs).__name__} {quote(kwargs_json)}")
     return kwargs

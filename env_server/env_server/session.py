@@ -25,7 +25,7 @@ import gymnasium
 import numpy as np
 
 from env_server import spaces
-from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError
+from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError, quote
 from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, build_instances
 from env_server.registry import EnvEntry
 from env_server.task import Objective, Task
@@ -252,7 +252,7 @@ class Session:
             if not 0 <= i < b:
                 raise InvalidArgument(f"env_indices: expected 0 <= index < {b} (num_envs={b}), got {i}")
         if len(set(indices)) != len(indices):
-            raise InvalidArgument(f"env_indices: expected distinct indices, got {indices}")
+            raise InvalidArgument(f"env_indices: expected distinct indices, got {quote(indices)}")
         n = len(indices)
         if len(seeds) == 0:
             per = [self._seed + i if self._seed is not None and not self._seeded[i] else None for i in indices]

@@ -19,7 +19,7 @@ from typing import Any, Sequence
 import gymnasium
 import numpy as np
 
-from env_server.errors import InvalidArgument
+from env_server.errors import InvalidArgument, quote
 
 #: The dtypes the wire format carries, by numpy name.
 SUPPORTED_DTYPES: tuple[str, ...] = ("float32", "float64", "int32", "int64", "uint8", "bool")
@@ -154,7 +154,7 @@ class ActionValidator:
         if tuple(shape) != self.shape:
             raise InvalidArgument(
                 f"action: expected shape {list(self.shape)} (num_envs={self.num_envs}, "
-                f"action space {self.space}), got {list(shape)}"
+                f"action space {self.space}), got {quote(list(shape))}"
             )
         if len(data) != self.nbytes:
             raise InvalidArgument(

@@ -140,7 +140,7 @@ def test_deeply_nested_kwargs_json_is_the_clients_error(stub, humanoid) -> None:
     assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
     assert err.details().startswith("kwargs_json: expected a JSON object nested at most"), err.details()[:200]
     # The message quotes a short prefix of the 600 kB value, not all of it.
-    assert len(err.details()) < 300 and f"({len(text)} characters)" in err.details()
+    assert len(err.details()) < 300 and f"({len(repr(text))} characters)" in err.details()
     test_valid_step_still_works(stub, humanoid)
 
 
@@ -191,6 +191,33 @@ def test_kwarg_of_the_wrong_type_fails_at_make(stub, env_id) -> None:
         stub.Reset(pb.ResetRequest(session_id=session_id))
         step(stub, session_id, np.zeros((1, 1), np.float32))
         stub.Close(pb.CloseRequest(session_id=session_id))
+
+
+def test_huge_client_values_are_quoted_by_a_short_prefix(stub, humanoid) -> None:
+    # Echoed whole, each message would pass the clients' 16 KiB metadata limit and the
+    # real error would be lost behind a RESOURCE_EXHAUSTED.
+    cases = [
+        (grpc.StatusCode.NOT_FOUND, "env_id: unknown env 'xxxx", lambda: make(stub, "x" * 10**6, 1)),
+        (grpc.StatusCode.NOT_FOUND, "env_id: unknown gymnasium id 'gym:xxxx", lambda: make(stub, "gym:" + "x" * 10**6, 1)),
+        (
+            grpc.StatusCode.INVALID_ARGUMENT,
+            "env_indices: expected distinct indices, got [0, 0, 0",
+            lambda: stub.Reset(pb.ResetRequest(session_id=humanoid, env_indices=[0] * 10**6)),
+        ),
+        (
+            grpc.StatusCode.INVALID_ARGUMENT,
+            "action: expected shape [2, 21]",
+            lambda: stub.Step(
+                pb.StepRequest(session_id=humanoid, action=pb.Tensor(dtype=pb.DTYPE_FLOAT32, shape=[1] * 100_000, data=b""))
+            ),
+        ),
+    ]
+    for code, start, call in cases:
+        err = rpc_error(call)
+        assert err.code() == code, (start, err.code())
+        assert err.details().startswith(start), err.details()[:200]
+        assert len(err.details()) < 1000 and "characters)" in err.details(), err.details()[:200]
+    test_valid_step_still_works(stub, humanoid)
 
 
 def test_unknown_kwarg(stub) -> None:
