@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from env_server.errors import InvalidArgument
+from env_server.errors import InvalidArgument, quote
 from env_server.task import Objective, StepOutcome, Task
 
 
@@ -38,10 +38,8 @@ def check_kwarg_types(gym_id: str, kwargs: dict[str, Any]) -> None:
         else:
             continue
         if not ok:
-            shown = repr(value)
-            shown = shown if len(shown) <= 64 else shown[:64] + "..."
             raise InvalidArgument(
-                f"kwargs_json: env '{gym_id}' keyword '{name}' expects {want} (its default is {default!r}), got {shown}"
+                f"kwargs_json: env '{gym_id}' keyword '{name}' expects {want} (its default is {default!r}), got {quote(value)}"
             )
 
 
