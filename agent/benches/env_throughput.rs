@@ -72,19 +72,44 @@ fn median_figures(runs: &[Figures]) -> Figures {
 fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
     let out = Command::new(default_python())
         .args(["-m", "env_server.bench_inprocess", "--raw", "--env", env])
-        .args(["--num-envs", &num_envs.to_string(), "--steps", &calls.to_string()])
+        .args([
+            "--num-envs",
+            &num_envs.to_string(),
+            "--steps",
+            &calls.to_string(),
+        ])
         .env("MUJOCO_GL", "disable")
         .output()
         .expect("run python -m env_server.bench_inprocess (scripts/setup.sh makes .venv)");
-    assert!(out.status.success(), "bench_inprocess failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "bench_inprocess failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let line = String::from_utf8_lossy(&out.stdout);
     let v: serde_json::Value = serde_json::from_str(line.trim()).expect("one JSON line");
     let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} in {line}"));
-    Figures { env_steps_per_s: f("env_steps_per_s"), p50_ms: f("call_p50_ms"), p99_ms: f("call_p99_ms"), reset_ms: f64::NAN }
+    Figures {
+        env_steps_per_s: f("env_steps_per_s"),
+        p50_ms: f("call_p50_ms"),
+        p99_ms: f("call_p99_ms"),
+        reset_ms: f64::NAN,
+    }
 }
 
-async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, stream: bool, workers: usize) -> Figures {
-    let options = MakeOptions { seed: Some(0), num_workers: workers, ..MakeOptions::new(env, num_envs) };
+async fn remote(
+    client: &EnvClient,
+    env: &str,
+    num_envs: usize,
+    calls: usize,
+    stream: bool,
+    workers: usize,
+) -> Figures {
+    let options = MakeOptions {
+        seed: Some(0),
+        num_workers: workers,
+        ..MakeOptions::new(env, num_envs)
+    };
     let mut session = client.make(&options).await.unwrap();
     if stream {
         session.use_stream();
@@ -94,7 +119,9 @@ async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, st
     let reset_ms = t0.elapsed().as_secs_f64() * 1e3;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let space = session.spec().action_space.clone();
-    let actions: Vec<HostTensor> = (0..calls).map(|_| random_action(&space, num_envs, &mut rng)).collect();
+    let actions: Vec<HostTensor> = (0..calls)
+        .map(|_| random_action(&space, num_envs, &mut rng))
+        .collect();
     // Warm up the connection (and the stream) outside the timed loop.
     for a in actions.iter().take(5) {
         session.step(a).await.unwrap();
@@ -119,46 +146,75 @@ async fn remote(client: &EnvClient, env: &str, num_envs: usize, calls: usize, st
 
 fn arg(name: &str, default: &str) -> String {
     let args: Vec<String> = std::env::args().collect();
-    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1).cloned()).unwrap_or_else(|| default.into())
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1).cloned())
+        .unwrap_or_else(|| default.into())
 }
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() {
     let env = arg("--env", "humanoid-run");
     let base_calls: usize = arg("--calls", "2000").parse().expect("--calls is a number");
-    let repeats: usize = arg("--repeats", "3").parse().expect("--repeats is a number");
+    let repeats: usize = arg("--repeats", "3")
+        .parse()
+        .expect("--repeats is a number");
     let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
     // The server process steps a share too: one process per CPU in all.
-    let max_workers: usize =
-        arg("--workers", &(cpus.max(2) - 1).to_string()).parse().expect("--workers is a number");
+    let max_workers: usize = arg("--workers", &(cpus.max(2) - 1).to_string())
+        .parse()
+        .expect("--workers is a number");
     assert!(repeats >= 1, "--repeats must be at least 1");
     let batch_sizes: Vec<usize> = arg("--batch-sizes", "1,8,32")
         .split(',')
-        .map(|b| b.trim().parse().expect("--batch-sizes is a comma-separated list of numbers"))
+        .map(|b| {
+            b.trim()
+                .parse()
+                .expect("--batch-sizes is a comma-separated list of numbers")
+        })
         .collect();
     let server_args = arg("--server-args", "");
     let options = ServerOptions {
         extra_args: server_args.split_whitespace().map(String::from).collect(),
         ..ServerOptions::default()
     };
-    let server = LocalServer::start(&options).await.expect("start env_server");
+    let server = LocalServer::start(&options)
+        .await
+        .expect("start env_server");
     let client = EnvClient::connect(server.address()).await.expect("connect");
     println!(
         "env_throughput: {env}, in-process Python (raw Task loop) vs. Rust client -> env_server on 127.0.0.1 \
          (server flags: {server_args:?}); medians of {repeats} repeats; `workers` = StepStream with the B instances split between \
          the server process and min(B - 1, {max_workers}) worker processes"
     );
-    let mode = |name: &str| format!("{:>12} {:>6} {:>9} {:>9}", format!("{name} st/s"), "ratio", "p50 ms", "p99 ms");
+    let mode = |name: &str| {
+        format!(
+            "{:>12} {:>6} {:>9} {:>9}",
+            format!("{name} st/s"),
+            "ratio",
+            "p50 ms",
+            "p99 ms"
+        )
+    };
     println!(
         "{:>3} {:>7} | {:>12} {:>9} {:>9} | {} | {} | {} | {:>9}",
-        "B", "calls", "inproc st/s", "p50 ms", "p99 ms", mode("unary"), mode("stream"), mode("workers"), "reset ms"
+        "B",
+        "calls",
+        "inproc st/s",
+        "p50 ms",
+        "p99 ms",
+        mode("unary"),
+        mode("stream"),
+        mode("workers"),
+        "reset ms"
     );
     let mut summary = Vec::new();
     for num_envs in batch_sizes {
         // Same env-step budget per B (at least 100 calls).
         let calls = (base_calls / num_envs).max(100);
         let workers = max_workers.min(num_envs - 1);
-        let (mut locals, mut unaries, mut streams, mut pooled) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut locals, mut unaries, mut streams, mut pooled) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for _ in 0..repeats {
             locals.push(in_process(&env, num_envs, calls));
             unaries.push(remote(&client, &env, num_envs, calls, false, 0).await);
@@ -177,7 +233,13 @@ async fn main() {
                 return format!("{:>12} {:>6} {:>9} {:>9}", "-", "-", "-", "-");
             }
             let f = median_figures(runs);
-            format!("{:>12.0} {:>6.2} {:>9.3} {:>9.3}", f.env_steps_per_s, within(runs, ratio), f.p50_ms, f.p99_ms)
+            format!(
+                "{:>12.0} {:>6.2} {:>9.3} {:>9.3}",
+                f.env_steps_per_s,
+                within(runs, ratio),
+                f.p50_ms,
+                f.p99_ms
+            )
         };
         let local = median_figures(&locals);
         println!(
@@ -197,8 +259,11 @@ async fn main() {
                 within(&streams, overhead)
             ));
         } else {
-            let pooled_ratio =
-                if pooled.is_empty() { "-".to_string() } else { format!("{:.2}", within(&pooled, ratio)) };
+            let pooled_ratio = if pooled.is_empty() {
+                "-".to_string()
+            } else {
+                format!("{:.2}", within(&pooled, ratio))
+            };
             summary.push(format!(
                 "B={num_envs} ratio to in-process: unary {:.2}, stream {:.2}, stream + {workers} workers {pooled_ratio} \
                  (target >= 0.90)",

@@ -39,22 +39,43 @@ fn main() {
     cfg.mpo.beta_cov = 1e-6;
     cfg.mpo.learning_rate = 2e-4;
     cfg.mpo.adam_eps = 1e-8;
-    let rust_ms = common::run(common::StepSize { name: "learner_step", obs_dim: 67, act_dim: 21, cfg });
+    let rust_ms = common::run(common::StepSize {
+        name: "learner_step",
+        obs_dim: 67,
+        act_dim: 21,
+        cfg,
+    });
     if std::env::args().any(|a| a == "--no-torch") {
         return;
     }
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let threads = tch::get_num_threads().to_string();
     let out = std::process::Command::new(root.join(".venv/bin/python"))
-        .args([root.join("agent/benches/learner_step_torch.py").to_str().expect("utf-8 path"), "--threads", &threads])
+        .args([
+            root.join("agent/benches/learner_step_torch.py")
+                .to_str()
+                .expect("utf-8 path"),
+            "--threads",
+            &threads,
+        ])
         .output()
-        .expect("run .venv/bin/python agent/benches/learner_step_torch.py (made by scripts/setup.sh)");
+        .expect(
+            "run .venv/bin/python agent/benches/learner_step_torch.py (made by scripts/setup.sh)",
+        );
     let text = String::from_utf8_lossy(&out.stdout);
     print!("{text}");
     let torch_ms: f64 = text
         .lines()
         .find_map(|l| l.strip_prefix("learner_step_ms_median="))
         .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("no figure from the PyTorch script: {}", String::from_utf8_lossy(&out.stderr)));
-    println!("ratio_rust_over_torch={:.3}  (Rust {rust_ms:.1} ms, PyTorch {torch_ms:.1} ms, {threads} threads)", rust_ms / torch_ms);
+        .unwrap_or_else(|| {
+            panic!(
+                "no figure from the PyTorch script: {}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    println!(
+        "ratio_rust_over_torch={:.3}  (Rust {rust_ms:.1} ms, PyTorch {torch_ms:.1} ms, {threads} threads)",
+        rust_ms / torch_ms
+    );
 }

@@ -15,9 +15,18 @@ use agent::config::{LearnerConfig, NetworkConfig};
 fn main() {
     let mut cfg = LearnerConfig {
         objectives: common::task_and_action_norm(0.01),
-        network: NetworkConfig { policy_layers: vec![64, 64], critic_layers: vec![128, 128], ..NetworkConfig::default() },
+        network: NetworkConfig {
+            policy_layers: vec![64, 64],
+            critic_layers: vec![128, 128],
+            ..NetworkConfig::default()
+        },
         ..LearnerConfig::default()
     };
     cfg.mpo.batch_size = 128;
-    common::run(common::StepSize { name: "learner_step_pendulum", obs_dim: 3, act_dim: 1, cfg });
+    common::run(common::StepSize {
+        name: "learner_step_pendulum",
+        obs_dim: 3,
+        act_dim: 1,
+        cfg,
+    });
 }

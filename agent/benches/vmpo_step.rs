@@ -17,7 +17,9 @@
 mod common;
 
 use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::{Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
+use agent::config::{
+    Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource,
+};
 use agent::nets::{ActionKind, ObsLeaf};
 use tch::{Kind, Tensor};
 
@@ -34,7 +36,11 @@ fn main() {
         algorithm: Algorithm::MoVmpo,
         objectives: OBJECTIVES
             .iter()
-            .map(|n| ObjectiveConfig { name: (*n).into(), epsilon: 0.1, source: ObjectiveSource::Learned })
+            .map(|n| ObjectiveConfig {
+                name: (*n).into(),
+                epsilon: 0.1,
+                source: ObjectiveSource::Learned,
+            })
             .collect(),
         network: NetworkConfig {
             policy_layers: vec![1024, 1024],
@@ -58,8 +64,14 @@ fn main() {
         action: ActionKind::Continuous { dim: ACT },
         reward_names: OBJECTIVES.iter().map(|n| (*n).to_string()).collect(),
         obs_leaves: vec![
-            ObsLeaf { name: "walker/proprioception".into(), dim: PROPRIO },
-            ObsLeaf { name: "walker/reference".into(), dim: REFERENCE },
+            ObsLeaf {
+                name: "walker/proprioception".into(),
+                dim: PROPRIO,
+            },
+            ObsLeaf {
+                name: "walker/reference".into(),
+                dim: REFERENCE,
+            },
         ],
     };
     let (t, b) = (cfg.vmpo.unroll_length as i64, cfg.vmpo.batch_size as i64);
@@ -75,8 +87,16 @@ fn main() {
         valid: Tensor::ones([t, b], opts),
     }
     .to_device(device);
-    println!("vmpo_step: obs {}, act {ACT}, B {b}, T {t}, K 5, mocap policy and critics, device {device:?}, threads {threads}", REFERENCE + PROPRIO);
-    let names = ["policy evaluation (values, targets, critic update)", "step 1 (top-k, weights, duals)", "step 2 (policy fit) + duals", "target update"];
+    println!(
+        "vmpo_step: obs {}, act {ACT}, B {b}, T {t}, K 5, mocap policy and critics, device {device:?}, threads {threads}",
+        REFERENCE + PROPRIO
+    );
+    let names = [
+        "policy evaluation (values, targets, critic update)",
+        "step 1 (top-k, weights, duals)",
+        "step 2 (policy fit) + duals",
+        "target update",
+    ];
     let totals = common::time_steps(&mut learner, &batch, 2, steps, names);
     println!("vmpo_step_ms_median={:.1}", common::median(totals));
 }

@@ -18,8 +18,8 @@ use crate::env::{Env, HostTensor, MakeOptions};
 use crate::error::{EnvError, StatusKind};
 use crate::metrics::{EpisodeRecord, RunFiles};
 use crate::nets::{ActorPolicy, PolicySnapshot};
-use crate::replay::adder::{AdderStep, SnippetAdder};
 use crate::replay::SnippetLayout;
+use crate::replay::adder::{AdderStep, SnippetAdder};
 use crate::schedule::Schedule;
 use crate::spec::Space;
 
@@ -80,7 +80,8 @@ impl ActionMap {
     pub fn apply(&self, actions: &Tensor, b: usize) -> (HostTensor, Vec<f32>) {
         match self {
             ActionMap::Continuous { low, high } => {
-                let raw = Vec::<f32>::try_from(&actions.to_kind(Kind::Float).flatten(0, -1)).expect("f32 actions");
+                let raw = Vec::<f32>::try_from(&actions.to_kind(Kind::Float).flatten(0, -1))
+                    .expect("f32 actions");
                 let d = low.len();
                 let env: Vec<f32> = raw
                     .iter()
@@ -88,15 +89,23 @@ impl ActionMap {
                     .map(|(i, &a)| {
                         let (lo, hi) = (low[i % d], high[i % d]);
                         let a = a.clamp(-1.0, 1.0);
-                        if lo.is_finite() && hi.is_finite() { lo + (a + 1.0) * 0.5 * (hi - lo) } else { a }
+                        if lo.is_finite() && hi.is_finite() {
+                            lo + (a + 1.0) * 0.5 * (hi - lo)
+                        } else {
+                            a
+                        }
                     })
                     .collect();
                 (HostTensor::from_f32(vec![b, d], &env), raw)
             }
             ActionMap::Discrete { start } => {
-                let idx = Vec::<i64>::try_from(&actions.to_kind(Kind::Int64).flatten(0, -1)).expect("i64 actions");
+                let idx = Vec::<i64>::try_from(&actions.to_kind(Kind::Int64).flatten(0, -1))
+                    .expect("i64 actions");
                 let env: Vec<i64> = idx.iter().map(|a| a + start).collect();
-                (HostTensor::from_i64(vec![b], &env), idx.iter().map(|&a| a as f32).collect())
+                (
+                    HostTensor::from_i64(vec![b], &env),
+                    idx.iter().map(|&a| a as f32).collect(),
+                )
             }
         }
     }
@@ -151,18 +160,39 @@ async fn restart(ctx: &Sessions<'_>, cause: &EnvError) -> Result<Live, EnvError>
         tokio::time::sleep(delay).await;
         delay = (delay * 2).min(Duration::from_secs(5));
     }
-    Err(EnvError::Process(format!("actor {}: could not make the session again after: {cause}", ctx.id)))
+    Err(EnvError::Process(format!(
+        "actor {}: could not make the session again after: {cause}",
+        ctx.id
+    )))
 }
 
 fn recoverable(e: &EnvError) -> bool {
-    matches!(e.status_kind(), Some(StatusKind::Unavailable | StatusKind::NotFound))
-        || matches!(e, EnvError::Connect { .. })
+    matches!(
+        e.status_kind(),
+        Some(StatusKind::Unavailable | StatusKind::NotFound)
+    ) || matches!(e, EnvError::Connect { .. })
 }
 
 /// Run until the env-step budget is spent or the schedule stops.
 pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
-    let ActorContext { id, client, make, mut policy, mut params, layout, schedule, files, total_env_steps } = ctx;
-    let sessions = Sessions { id, client: &client, make: &make, layout, schedule: &schedule };
+    let ActorContext {
+        id,
+        client,
+        make,
+        mut policy,
+        mut params,
+        layout,
+        schedule,
+        files,
+        total_env_steps,
+    } = ctx;
+    let sessions = Sessions {
+        id,
+        client: &client,
+        make: &make,
+        layout,
+        schedule: &schedule,
+    };
     let b = make.num_envs;
     let (o, k) = (layout.obs_dim, layout.num_rewards);
     let mut live = start(&sessions).await?;
@@ -170,7 +200,9 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     loop {
         if params.has_changed().unwrap_or(false) {
             let snapshot = params.borrow_and_update().clone();
-            policy.load(&snapshot).map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+            policy
+                .load(&snapshot)
+                .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
         }
         let c = schedule.counters();
         if c.stop || c.env_steps >= total_env_steps {
@@ -178,7 +210,8 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         }
         let obs_t = Tensor::from_slice(&live.obs).view([b as i64, o as i64]);
         let out = tch::no_grad(|| policy.act(&obs_t, false));
-        let log_probs = Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
+        let log_probs =
+            Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
         let (env_action, replay_actions) = map.apply(&out.actions, b);
         let step = match live.env.step(&env_action).await {
             Ok(step) => step,
@@ -215,15 +248,27 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         {
             let mut replay = schedule.replay.lock().unwrap_or_else(|e| e.into_inner());
             for s in snippets {
-                replay.insert(s).map_err(|e| EnvError::Process(e.to_string()))?;
+                replay
+                    .insert(s)
+                    .map_err(|e| EnvError::Process(e.to_string()))?;
             }
         }
         let env_steps = schedule.counters().env_steps + b as u64;
         for episode in &step.episodes {
-            let record = EpisodeRecord { env_steps, actor: id, episode: episode.clone(), wall_seconds: schedule.elapsed_seconds() };
-            files.episode(&record).map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
+            let record = EpisodeRecord {
+                env_steps,
+                actor: id,
+                episode: episode.clone(),
+                wall_seconds: schedule.elapsed_seconds(),
+            };
+            files
+                .episode(&record)
+                .map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
         }
-        schedule.add_env_steps(b as u64, step.episodes.into_iter().map(|e| e.episode_return));
+        schedule.add_env_steps(
+            b as u64,
+            step.episodes.into_iter().map(|e| e.episode_return),
+        );
         schedule.wait_for_learner().await;
     }
     // The session may already be gone if the server went away at the very end.

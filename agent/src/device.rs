@@ -43,7 +43,8 @@ pub fn critic_step_macs(cfg: &LearnerConfig, dims: &LearnerDims) -> f64 {
     let layers = &cfg.network.critic_layers;
     let input = (dims.obs_dim + dims.action.critic_input_dim()) as f64;
     let first = input * layers[0] as f64;
-    let rest: f64 = layers.windows(2).map(|w| (w[0] * w[1]) as f64).sum::<f64>() + *layers.last().unwrap_or(&0) as f64;
+    let rest: f64 = layers.windows(2).map(|w| (w[0] * w[1]) as f64).sum::<f64>()
+        + *layers.last().unwrap_or(&0) as f64;
     rows * (first + rest)
 }
 
@@ -58,7 +59,9 @@ pub fn choose_device(cfg: &LearnerConfig, dims: &LearnerDims) -> Result<Device, 
             requirement: "\"cpu\" or \"auto\" on a machine where libtorch sees no GPU".into(),
             got: "\"cuda\"".into(),
         }),
-        DeviceChoice::Auto if gpu && critic_step_macs(cfg, dims) >= GPU_MIN_STEP_MACS => Ok(Device::Cuda(0)),
+        DeviceChoice::Auto if gpu && critic_step_macs(cfg, dims) >= GPU_MIN_STEP_MACS => {
+            Ok(Device::Cuda(0))
+        }
         DeviceChoice::Auto => Ok(Device::Cpu),
     }
 }
@@ -104,31 +107,60 @@ mod tests {
     use crate::config::NetworkConfig;
 
     fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
-        LearnerDims { obs_dim, action, reward_names: vec!["task".into()], obs_leaves: Vec::new() }
+        LearnerDims {
+            obs_dim,
+            action,
+            reward_names: vec!["task".into()],
+            obs_leaves: Vec::new(),
+        }
     }
 
     #[test]
     fn auto_keeps_small_networks_on_the_cpu_and_sizes_the_humanoid_step() {
         // Deep Sea Treasure (A.2): T = 1, B = 128, 4 actions, critic (128, 128), obs 2:
         // 2 * 128 * 4 rows * (6 * 128 + 128 * 128 + 128) = 1024 * 17280 ~ 1.8e7.
-        let mut dst = LearnerConfig { network: NetworkConfig { critic_layers: vec![128, 128], ..NetworkConfig::default() }, ..LearnerConfig::default() };
+        let mut dst = LearnerConfig {
+            network: NetworkConfig {
+                critic_layers: vec![128, 128],
+                ..NetworkConfig::default()
+            },
+            ..LearnerConfig::default()
+        };
         dst.mpo.retrace_length = 1;
         dst.mpo.batch_size = 128;
-        assert_eq!(critic_step_macs(&dst, &dims(2, ActionKind::Discrete { n: 4 })), 1024.0 * 17280.0);
-        assert_eq!(choose_device(&dst, &dims(2, ActionKind::Discrete { n: 4 })).unwrap(), Device::Cpu);
+        assert_eq!(
+            critic_step_macs(&dst, &dims(2, ActionKind::Discrete { n: 4 })),
+            1024.0 * 17280.0
+        );
+        assert_eq!(
+            choose_device(&dst, &dims(2, ActionKind::Discrete { n: 4 })).unwrap(),
+            Device::Cpu
+        );
         // Humanoid run (Table 3): 9 * 512 * 20 rows * (88 * 500 + 500 * 500 + 500 * 400 + 400).
-        let mut humanoid = LearnerConfig { network: NetworkConfig { critic_layers: vec![500, 500, 400], ..NetworkConfig::default() }, ..LearnerConfig::default() };
+        let mut humanoid = LearnerConfig {
+            network: NetworkConfig {
+                critic_layers: vec![500, 500, 400],
+                ..NetworkConfig::default()
+            },
+            ..LearnerConfig::default()
+        };
         let macs = critic_step_macs(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 }));
         assert_eq!(macs, 92160.0 * 494_400.0);
         assert!(macs > GPU_MIN_STEP_MACS);
         humanoid.device = DeviceChoice::Cpu;
-        assert_eq!(choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 })).unwrap(), Device::Cpu);
+        assert_eq!(
+            choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 })).unwrap(),
+            Device::Cpu
+        );
         humanoid.device = DeviceChoice::Cuda;
         let got = choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 }));
         if tch::Cuda::is_available() {
             assert_eq!(got.unwrap(), Device::Cuda(0));
         } else {
-            assert_eq!(got.unwrap_err().to_string(), r#"learner.device must be "cpu" or "auto" on a machine where libtorch sees no GPU, got "cuda""#);
+            assert_eq!(
+                got.unwrap_err().to_string(),
+                r#"learner.device must be "cpu" or "auto" on a machine where libtorch sees no GPU, got "cuda""#
+            );
         }
     }
 }

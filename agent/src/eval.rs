@@ -18,10 +18,17 @@ use crate::run_config::TrainConfig;
 use crate::train::{TrainError, connect_all, make_options, mean_of, probe_spec};
 
 /// Run the deterministic policy until `episodes` episodes finish; the server's summaries.
-pub async fn evaluate(client: &EnvClient, cfg: &TrainConfig, policy: ActorPolicy, episodes: usize) -> Result<Vec<EpisodeSummary>, EnvError> {
+pub async fn evaluate(
+    client: &EnvClient,
+    cfg: &TrainConfig,
+    policy: ActorPolicy,
+    episodes: usize,
+) -> Result<Vec<EpisodeSummary>, EnvError> {
     let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
     // Seeds disjoint from the training sessions'.
-    let mut env = client.make(&make_options(cfg, num_envs, cfg.seed + 1_000_000)).await?;
+    let mut env = client
+        .make(&make_options(cfg, num_envs, cfg.seed + 1_000_000))
+        .await?;
     env.use_stream();
     let map = ActionMap::new(&env.spec().action_space)?;
     let o = env.spec().observation_space.flat_dim();
@@ -59,18 +66,28 @@ pub struct EvalReport {
 
 /// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
 /// `checkpoints/step_<n>` directory) with the deterministic policy.
-pub async fn evaluate_checkpoint(path: &Path, addresses: &[String], episodes: usize) -> Result<EvalReport, TrainError> {
+pub async fn evaluate_checkpoint(
+    path: &Path,
+    addresses: &[String],
+    episodes: usize,
+) -> Result<EvalReport, TrainError> {
     let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
         (path.to_path_buf(), latest_checkpoint(path)?.0)
     } else {
-        let run_dir = path.parent().and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
+        let run_dir = path
+            .parent()
+            .and_then(Path::parent)
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
         (run_dir, path.to_path_buf())
     };
     let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
     let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
     let dims = learner.dims().clone();
     let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
-    policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+    policy
+        .load(&learner.policy_snapshot())
+        .map_err(|e| TrainError::Stopped(e.to_string()))?;
     let clients = connect_all(addresses).await?;
     let spec = probe_spec(&clients[0], &cfg).await?;
     drop(learner);

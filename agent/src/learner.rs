@@ -59,21 +59,37 @@ pub enum LearnerLoopError {
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnerLoopError + '_ {
-    move |source| LearnerLoopError::Io { path: path.to_path_buf(), source }
+    move |source| LearnerLoopError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 /// Write a checkpoint of `learner` and `counters` under `<run>/checkpoints/`.
-pub fn save_run_checkpoint(run_dir: &Path, learner: &Learner, counters: &Counters) -> Result<PathBuf, LearnerLoopError> {
+pub fn save_run_checkpoint(
+    run_dir: &Path,
+    learner: &Learner,
+    counters: &Counters,
+) -> Result<PathBuf, LearnerLoopError> {
     let dir = run_dir.join("checkpoints");
     let name = format!("step_{:09}", learner.step_count());
     let ckpt = dir.join(&name);
     learner.save_checkpoint(&ckpt)?;
-    let progress =
-        RunProgress { env_steps: counters.env_steps, learner_steps: learner.step_count(), episodes: counters.episodes };
+    let progress = RunProgress {
+        env_steps: counters.env_steps,
+        learner_steps: learner.step_count(),
+        episodes: counters.episodes,
+    };
     let progress_path = dir.join(format!("{name}.run.json"));
     write_json_atomic(&progress_path, &progress).map_err(io_err(&progress_path))?;
     let latest = dir.join("latest.json");
-    write_json_atomic(&latest, &Latest { checkpoint: name.clone() }).map_err(io_err(&latest))?;
+    write_json_atomic(
+        &latest,
+        &Latest {
+            checkpoint: name.clone(),
+        },
+    )
+    .map_err(io_err(&latest))?;
     // Keep the two newest complete checkpoints.
     let mut names: Vec<String> = std::fs::read_dir(&dir)
         .map_err(io_err(&dir))?
@@ -92,13 +108,18 @@ pub fn save_run_checkpoint(run_dir: &Path, learner: &Learner, counters: &Counter
 pub fn latest_checkpoint(run_dir: &Path) -> Result<(PathBuf, RunProgress), LearnerLoopError> {
     let dir = run_dir.join("checkpoints");
     let latest_path = dir.join("latest.json");
-    let text = std::fs::read_to_string(&latest_path).map_err(|_| LearnerLoopError::NoCheckpoint(run_dir.to_path_buf()))?;
-    let latest: Latest = serde_json::from_str(&text)
-        .map_err(|e| LearnerLoopError::Io { path: latest_path.clone(), source: std::io::Error::other(e) })?;
+    let text = std::fs::read_to_string(&latest_path)
+        .map_err(|_| LearnerLoopError::NoCheckpoint(run_dir.to_path_buf()))?;
+    let latest: Latest = serde_json::from_str(&text).map_err(|e| LearnerLoopError::Io {
+        path: latest_path.clone(),
+        source: std::io::Error::other(e),
+    })?;
     let progress_path = dir.join(format!("{}.run.json", latest.checkpoint));
     let text = std::fs::read_to_string(&progress_path).map_err(io_err(&progress_path))?;
-    let progress: RunProgress = serde_json::from_str(&text)
-        .map_err(|e| LearnerLoopError::Io { path: progress_path.clone(), source: std::io::Error::other(e) })?;
+    let progress: RunProgress = serde_json::from_str(&text).map_err(|e| LearnerLoopError::Io {
+        path: progress_path.clone(),
+        source: std::io::Error::other(e),
+    })?;
     Ok((dir.join(latest.checkpoint), progress))
 }
 
@@ -148,14 +169,27 @@ pub struct LearnerContext {
 
 /// Run until the schedule stops; always writes a final checkpoint. Returns the learner.
 pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
-    let LearnerContext { mut learner, schedule, params, files, publish_period, checkpoint_period, log_period, latest } = ctx;
+    let LearnerContext {
+        mut learner,
+        schedule,
+        params,
+        files,
+        publish_period,
+        checkpoint_period,
+        log_period,
+        latest,
+    } = ctx;
     let started = Instant::now();
     let device = learner.device();
     let batch_size = learner.settings().batch_size;
     let result = (|| -> Result<(), LearnerLoopError> {
         while schedule.wait_for_work() {
             let t0 = Instant::now();
-            let batch = schedule.replay.lock().unwrap_or_else(|e| e.into_inner()).sample(batch_size);
+            let batch = schedule
+                .replay
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .sample(batch_size);
             let stats = learner.step(&batch.to_device(device))?;
             let step_ms = t0.elapsed().as_secs_f64() * 1e3;
             let n = learner.step_count();

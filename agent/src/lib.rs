@@ -17,7 +17,10 @@
 //! Shape legend used in docs: B batch (env instances, replay samples or unrolls), M
 //! sampled actions per state, D action dims, K objectives, T snippet or unroll length.
 
-#![allow(clippy::result_large_err, reason = "run errors carry paths and sources; they are rare, not on a hot path")]
+#![allow(
+    clippy::result_large_err,
+    reason = "run errors carry paths and sources; they are rare, not on a hot path"
+)]
 
 pub mod actor;
 pub mod algo;
@@ -25,8 +28,8 @@ pub mod checkpoint;
 pub mod config;
 pub mod device;
 pub mod env;
-pub mod eval;
 pub mod error;
+pub mod eval;
 pub mod learner;
 pub mod metrics;
 pub mod nets;

@@ -4,13 +4,13 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use agent::config::DeviceChoice;
 use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
-use agent::config::DeviceChoice;
+use agent::eval::evaluate_checkpoint;
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
-use agent::eval::evaluate_checkpoint;
 use agent::train::{TrainOptions, TrainSummary, train};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -102,22 +102,35 @@ enum Command {
 fn main() -> Result<()> {
     // Before the runtime's threads exist: mallopt's settings are process-wide.
     agent::device::tune_allocator();
-    tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run())
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?
+        .block_on(run())
 }
 
 async fn run() -> Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
-        Command::Train { config, resume, servers, total_env_steps, overrides, device } => {
+        Command::Train {
+            config,
+            resume,
+            servers,
+            total_env_steps,
+            overrides,
+            device,
+        } => {
             let path = match (&resume, config) {
                 (Some(dir), _) => dir.join("config.toml"),
                 (None, Some(path)) => path,
                 (None, None) => unreachable!("clap requires --config or --resume"),
             };
-            let mut cfg = TrainConfig::load_with(&path, &overrides).with_context(|| format!("loading {}", path.display()))?;
+            let mut cfg = TrainConfig::load_with(&path, &overrides)
+                .with_context(|| format!("loading {}", path.display()))?;
             if let Some(n) = total_env_steps {
                 cfg.run.total_env_steps = n;
             }
@@ -128,18 +141,35 @@ async fn run() -> Result<()> {
                 cfg.env.servers = servers;
             }
             let (addresses, local) = server_addresses(&cfg.env.servers).await?;
-            let summary = train(cfg, &addresses, TrainOptions { resume, progress: true }).await;
+            let summary = train(
+                cfg,
+                &addresses,
+                TrainOptions {
+                    resume,
+                    progress: true,
+                },
+            )
+            .await;
             if let Some(local) = local {
                 local.stop().await?;
             }
             print_summary(&summary?);
         }
-        Command::Sweep { config, servers, device } => {
-            let (sweep_cfg, mut base) = SweepConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+        Command::Sweep {
+            config,
+            servers,
+            device,
+        } => {
+            let (sweep_cfg, mut base) = SweepConfig::load(&config)
+                .with_context(|| format!("loading {}", config.display()))?;
             if let Some(d) = device {
                 base.learner.device = d;
             }
-            let configured = if servers.is_empty() { base.env.servers.clone() } else { servers };
+            let configured = if servers.is_empty() {
+                base.env.servers.clone()
+            } else {
+                servers
+            };
             let (addresses, local) = server_addresses(&configured).await?;
             let result = sweep(&sweep_cfg, &base, &addresses, true).await;
             if let Some(local) = local {
@@ -147,30 +177,69 @@ async fn run() -> Result<()> {
             }
             let s = result?;
             let names = s.objectives.join(", ");
-            println!("\nsweep {} ({} runs, {:.0} s wall)", s.dir.display(), s.points.len(), s.wall_seconds);
-            println!("  {:<44} {:>5}  eval return [{names}]  front", "setting", "seed");
+            println!(
+                "\nsweep {} ({} runs, {:.0} s wall)",
+                s.dir.display(),
+                s.points.len(),
+                s.wall_seconds
+            );
+            println!(
+                "  {:<44} {:>5}  eval return [{names}]  front",
+                "setting", "seed"
+            );
             for p in &s.points {
-                let setting: Vec<String> = p.setting.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                let setting: Vec<String> =
+                    p.setting.iter().map(|(k, v)| format!("{k}={v}")).collect();
                 let mark = if p.on_front { "*" } else { "" };
-                println!("  {:<44} {:>5}  {:<28} {mark}", setting.join(" "), p.seed, format_vector(&p.eval_return));
+                println!(
+                    "  {:<44} {:>5}  {:<28} {mark}",
+                    setting.join(" "),
+                    p.seed,
+                    format_vector(&p.eval_return)
+                );
             }
             let reference = format_vector(&s.reference_point);
-            println!("  hypervolume {:.2} (undiscounted, reference {reference}); EUM {:.3}", s.hypervolume, s.expected_utility);
-            println!("  wrote points.csv front.csv summary.json front.png/svg in {}", s.dir.display());
+            println!(
+                "  hypervolume {:.2} (undiscounted, reference {reference}); EUM {:.3}",
+                s.hypervolume, s.expected_utility
+            );
+            println!(
+                "  wrote points.csv front.csv summary.json front.png/svg in {}",
+                s.dir.display()
+            );
         }
-        Command::Eval { checkpoint, episodes, servers } => {
+        Command::Eval {
+            checkpoint,
+            episodes,
+            servers,
+        } => {
             let (addresses, local) = server_addresses(&servers).await?;
             let report = evaluate_checkpoint(&checkpoint, &addresses, episodes).await;
             if let Some(local) = local {
                 local.stop().await?;
             }
             let r = report?;
-            println!("checkpoint {} ({} episodes, deterministic policy)", r.checkpoint.display(), r.episodes.len());
+            println!(
+                "checkpoint {} ({} episodes, deterministic policy)",
+                r.checkpoint.display(),
+                r.episodes.len()
+            );
             println!("  objectives [{}]", r.objectives.join(", "));
             for e in &r.episodes {
-                println!("  env {:>2} length {:>5}  return {}  discounted {}", e.env_index, e.length, format_vector(&e.episode_return), format_vector(&e.discounted_return));
+                println!(
+                    "  env {:>2} length {:>5}  return {}  discounted {}",
+                    e.env_index,
+                    e.length,
+                    format_vector(&e.episode_return),
+                    format_vector(&e.discounted_return)
+                );
             }
-            println!("  mean return {}  mean discounted return (γ={}) {}", format_vector(&r.mean_return), r.discount, format_vector(&r.mean_discounted_return));
+            println!(
+                "  mean return {}  mean discounted return (γ={}) {}",
+                format_vector(&r.mean_return),
+                r.discount,
+                format_vector(&r.mean_discounted_return)
+            );
         }
         Command::Envs { server } => {
             let (client, local) = connect(server).await?;
@@ -179,7 +248,13 @@ async fn run() -> Result<()> {
                 local.stop().await?;
             }
         }
-        Command::Demo { server, envs, num_envs, episodes, seed } => {
+        Command::Demo {
+            server,
+            envs,
+            num_envs,
+            episodes,
+            seed,
+        } => {
             let (client, local) = connect(server).await?;
             for env_id in &envs {
                 demo(&client, env_id, num_envs, episodes, seed).await?;
@@ -197,7 +272,9 @@ async fn connect(server: Option<String>) -> Result<(EnvClient, Option<LocalServe
     match server {
         Some(address) => Ok((EnvClient::connect(&address).await?, None)),
         None => {
-            let local = LocalServer::start(&ServerOptions::default()).await.context("starting a local env_server")?;
+            let local = LocalServer::start(&ServerOptions::default())
+                .await
+                .context("starting a local env_server")?;
             tracing::info!(address = local.address(), "started local env_server");
             Ok((EnvClient::connect(local.address()).await?, Some(local)))
         }
@@ -209,7 +286,9 @@ async fn server_addresses(configured: &[String]) -> Result<(Vec<String>, Option<
     if !configured.is_empty() {
         return Ok((configured.to_vec(), None));
     }
-    let local = LocalServer::start(&ServerOptions::default()).await.context("starting a local env_server")?;
+    let local = LocalServer::start(&ServerOptions::default())
+        .await
+        .context("starting a local env_server")?;
     tracing::info!(address = local.address(), "started local env_server");
     Ok((vec![local.address().to_string()], Some(local)))
 }
@@ -222,14 +301,28 @@ fn print_summary(s: &TrainSummary) {
         s.env_steps, s.learner_steps, s.episodes, s.wall_seconds, s.learner_device
     );
     println!("  objectives             [{names}]");
-    println!("  recent training return {}", format_vector(&s.recent_train_return));
+    println!(
+        "  recent training return {}",
+        format_vector(&s.recent_train_return)
+    );
     let eta: Vec<f64> = s.temperature.iter().map(|&t| f64::from(t)).collect();
     println!("  temperatures eta_k     {}", format_vector(&eta));
-    println!("  eval return ({} episodes, deterministic policy)", s.eval_episodes.len());
+    println!(
+        "  eval return ({} episodes, deterministic policy)",
+        s.eval_episodes.len()
+    );
     println!("    undiscounted         {}", format_vector(&s.eval_return));
-    println!("    discounted (γ={})  {}", s.eval_discount, format_vector(&s.eval_discounted_return));
+    println!(
+        "    discounted (γ={})  {}",
+        s.eval_discount,
+        format_vector(&s.eval_discounted_return)
+    );
     if !s.solve_threshold.is_empty() {
-        let rule: Vec<String> = s.solve_threshold.iter().map(|(k, v)| format!("{k} >= {v}")).collect();
+        let rule: Vec<String> = s
+            .solve_threshold
+            .iter()
+            .map(|(k, v)| format!("{k} >= {v}"))
+            .collect();
         match &s.solved {
             Some(r) => println!(
                 "  solved ({}, mean of {} training episodes) at {} env steps, {:.1} s: {}",
@@ -239,10 +332,16 @@ fn print_summary(s: &TrainSummary) {
                 r.wall_seconds,
                 format_vector(&r.running_mean)
             ),
-            None => println!("  not solved ({}, mean of {} training episodes)", rule.join(", "), agent::solve::SOLVE_WINDOW),
+            None => println!(
+                "  not solved ({}, mean of {} training episodes)",
+                rule.join(", "),
+                agent::solve::SOLVE_WINDOW
+            ),
         }
     }
-    println!("  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg checkpoints/");
+    println!(
+        "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg checkpoints/"
+    );
 }
 
 async fn print_envs(client: &EnvClient) -> Result<()> {
@@ -256,29 +355,51 @@ async fn print_envs(client: &EnvClient) -> Result<()> {
     for env in client.list_envs().await? {
         println!("\n{:<16} {}", env.env_id, env.description);
         for o in env.objectives {
-            println!("    {:<14} [{}, {}]  {}", o.name, o.min, o.max, o.description);
+            println!(
+                "    {:<14} [{}, {}]  {}",
+                o.name, o.min, o.max, o.description
+            );
         }
     }
     Ok(())
 }
 
-async fn demo(client: &EnvClient, env_id: &str, num_envs: usize, episodes: usize, seed: u64) -> Result<()> {
-    let options = MakeOptions { seed: Some(seed), ..MakeOptions::new(env_id, num_envs) };
-    let mut env: RemoteEnv = client.make(&options).await.with_context(|| format!("making {env_id}"))?;
+async fn demo(
+    client: &EnvClient,
+    env_id: &str,
+    num_envs: usize,
+    episodes: usize,
+    seed: u64,
+) -> Result<()> {
+    let options = MakeOptions {
+        seed: Some(seed),
+        ..MakeOptions::new(env_id, num_envs)
+    };
+    let mut env: RemoteEnv = client
+        .make(&options)
+        .await
+        .with_context(|| format!("making {env_id}"))?;
     let spec = env.spec().clone();
     let names = spec.objective_names().join(", ");
-    println!("\n{env_id}: B={num_envs}, objectives [{names}], discount {}", spec.discount);
+    println!(
+        "\n{env_id}: B={num_envs}, objectives [{names}], discount {}",
+        spec.discount
+    );
     env.reset(&[], &[]).await?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let bar = ProgressBar::new(episodes as u64).with_style(
-        ProgressStyle::with_template("{spinner} {msg:>14} episodes {pos}/{len} [{elapsed}] {per_sec}")
-            .expect("valid template"),
+        ProgressStyle::with_template(
+            "{spinner} {msg:>14} episodes {pos}/{len} [{elapsed}] {per_sec}",
+        )
+        .expect("valid template"),
     );
     bar.set_message(env_id.to_string());
     let started = Instant::now();
     let (mut finished, mut steps) = (Vec::new(), 0u64);
     while finished.len() < episodes {
-        let result = env.step(&random_action(&spec.action_space, num_envs, &mut rng)).await?;
+        let result = env
+            .step(&random_action(&spec.action_space, num_envs, &mut rng))
+            .await?;
         steps += num_envs as u64;
         for episode in result.episodes {
             bar.inc(1);
@@ -297,7 +418,10 @@ async fn demo(client: &EnvClient, env_id: &str, num_envs: usize, episodes: usize
             format_vector(&e.discounted_return)
         );
     }
-    println!("  {steps} env steps in {elapsed:.2} s ({:.0} steps/s)", steps as f64 / elapsed);
+    println!(
+        "  {steps} env steps in {elapsed:.2} s ({:.0} steps/s)",
+        steps as f64 / elapsed
+    );
     env.close().await?;
     Ok(())
 }

@@ -48,15 +48,28 @@ impl RunFiles {
         std::fs::create_dir_all(dir)?;
         let (mut episodes, existed) = append(&dir.join("episodes.csv"))?;
         if !existed {
-            let mut header = vec!["env_steps".to_string(), "actor".into(), "env_index".into(), "length".into()];
+            let mut header = vec![
+                "env_steps".to_string(),
+                "actor".into(),
+                "env_index".into(),
+                "length".into(),
+            ];
             header.extend(objective_names.iter().map(|n| format!("return_{n}")));
-            header.extend(objective_names.iter().map(|n| format!("discounted_return_{n}")));
+            header.extend(
+                objective_names
+                    .iter()
+                    .map(|n| format!("discounted_return_{n}")),
+            );
             header.push("terminated".into());
             header.push("wall_seconds".into());
             writeln!(episodes, "{}", header.join(","))?;
         }
         let (learner, _) = append(&dir.join("learner.jsonl"))?;
-        Ok(Self { dir: dir.to_path_buf(), episodes: Mutex::new(episodes), learner: Mutex::new(learner) })
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            episodes: Mutex::new(episodes),
+            learner: Mutex::new(learner),
+        })
     }
 
     /// The run directory.
@@ -67,7 +80,12 @@ impl RunFiles {
     /// Append one episode row.
     pub fn episode(&self, record: &EpisodeRecord) -> std::io::Result<()> {
         let e = &record.episode;
-        let mut row = vec![record.env_steps.to_string(), record.actor.to_string(), e.env_index.to_string(), e.length.to_string()];
+        let mut row = vec![
+            record.env_steps.to_string(),
+            record.actor.to_string(),
+            e.env_index.to_string(),
+            e.length.to_string(),
+        ];
         row.extend(e.episode_return.iter().map(|v| format!("{v}")));
         row.extend(e.discounted_return.iter().map(|v| format!("{v}")));
         row.push(e.terminated.to_string());
@@ -89,8 +107,14 @@ impl RunFiles {
 
     /// Flush both files (at checkpoints and at exit).
     pub fn flush(&self) -> std::io::Result<()> {
-        self.episodes.lock().unwrap_or_else(|p| p.into_inner()).flush()?;
-        self.learner.lock().unwrap_or_else(|p| p.into_inner()).flush()
+        self.episodes
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .flush()?;
+        self.learner
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .flush()
     }
 }
 

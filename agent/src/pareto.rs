@@ -8,11 +8,16 @@
 
 /// Indices of the points no other point dominates (duplicates keep their first index).
 pub fn non_dominated(points: &[Vec<f64>]) -> Vec<usize> {
-    let dominates = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x >= y) && a.iter().zip(b).any(|(x, y)| x > y);
+    let dominates = |a: &[f64], b: &[f64]| {
+        a.iter().zip(b).all(|(x, y)| x >= y) && a.iter().zip(b).any(|(x, y)| x > y)
+    };
     (0..points.len())
         .filter(|&i| {
             let p = &points[i];
-            !points.iter().enumerate().any(|(j, q)| dominates(q, p) || (j < i && q == p))
+            !points
+                .iter()
+                .enumerate()
+                .any(|(j, q)| dominates(q, p) || (j < i && q == p))
         })
         .collect()
 }
@@ -23,8 +28,11 @@ pub fn non_dominated(points: &[Vec<f64>]) -> Vec<usize> {
 /// K = 2 is a sweep over the sorted front; K > 2 slices along the last objective and
 /// recurses (fine for the tens of points a sweep produces).
 pub fn hypervolume(points: &[Vec<f64>], reference: &[f64]) -> f64 {
-    let inside: Vec<Vec<f64>> =
-        points.iter().filter(|p| p.iter().zip(reference).all(|(x, r)| x > r)).cloned().collect();
+    let inside: Vec<Vec<f64>> = points
+        .iter()
+        .filter(|p| p.iter().zip(reference).all(|(x, r)| x > r))
+        .cloned()
+        .collect();
     hv_recursive(&inside, reference)
 }
 
@@ -34,7 +42,10 @@ fn hv_recursive(points: &[Vec<f64>], reference: &[f64]) -> f64 {
         return 0.0;
     }
     if k == 1 {
-        return points.iter().map(|p| p[0] - reference[0]).fold(0.0, f64::max);
+        return points
+            .iter()
+            .map(|p| p[0] - reference[0])
+            .fold(0.0, f64::max);
     }
     if k == 2 {
         // Sort by the first objective, best first; each point adds the strip of the
@@ -57,8 +68,11 @@ fn hv_recursive(points: &[Vec<f64>], reference: &[f64]) -> f64 {
     levels.dedup();
     let (mut volume, mut below) = (0.0, reference[k - 1]);
     for &level in &levels {
-        let reaching: Vec<Vec<f64>> =
-            points.iter().filter(|p| p[k - 1] >= level).map(|p| p[..k - 1].to_vec()).collect();
+        let reaching: Vec<Vec<f64>> = points
+            .iter()
+            .filter(|p| p[k - 1] >= level)
+            .map(|p| p[..k - 1].to_vec())
+            .collect();
         volume += hv_recursive(&reaching, &reference[..k - 1]) * (level - below);
         below = level;
     }
@@ -68,7 +82,10 @@ fn hv_recursive(points: &[Vec<f64>], reference: &[f64]) -> f64 {
 /// Expected utility: mean over `weights` of the best linear utility on the front.
 pub fn expected_utility(points: &[Vec<f64>], weights: &[Vec<f64>]) -> f64 {
     let best = |w: &Vec<f64>| {
-        points.iter().map(|p| p.iter().zip(w).map(|(x, wi)| x * wi).sum::<f64>()).fold(f64::NEG_INFINITY, f64::max)
+        points
+            .iter()
+            .map(|p| p.iter().zip(w).map(|(x, wi)| x * wi).sum::<f64>())
+            .fold(f64::NEG_INFINITY, f64::max)
     };
     weights.iter().map(best).sum::<f64>() / weights.len() as f64
 }
@@ -80,7 +97,10 @@ pub fn expected_utility(points: &[Vec<f64>], weights: &[Vec<f64>]) -> f64 {
 /// are the evenly spaced line, so two-objective EUM figures are comparable.
 pub fn simplex_weights(k: usize, n: usize) -> Vec<Vec<f64>> {
     if k == 2 {
-        return (0..n).map(|i| i as f64 / (n - 1).max(1) as f64).map(|t| vec![t, 1.0 - t]).collect();
+        return (0..n)
+            .map(|i| i as f64 / (n - 1).max(1) as f64)
+            .map(|t| vec![t, 1.0 - t])
+            .collect();
     }
     // Smallest lattice resolution h with C(h + k - 1, k - 1) >= n.
     let count = |h: usize| (1..k).fold(1usize, |acc, i| acc * (h + i) / i);
@@ -106,10 +126,21 @@ pub fn simplex_weights(k: usize, n: usize) -> Vec<Vec<f64>> {
 /// Inverted generational distance: mean over `true_front` of the Euclidean distance
 /// to the nearest point of `found` (0 when every true point is found).
 pub fn igd(found: &[Vec<f64>], true_front: &[Vec<f64>]) -> f64 {
-    let dist = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
+    let dist = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
     true_front
         .iter()
-        .map(|t| found.iter().map(|f| dist(f, t)).fold(f64::INFINITY, f64::min))
+        .map(|t| {
+            found
+                .iter()
+                .map(|f| dist(f, t))
+                .fold(f64::INFINITY, f64::min)
+        })
         .sum::<f64>()
         / true_front.len() as f64
 }
@@ -121,10 +152,21 @@ mod tests {
     /// Deep Sea Treasure's true front as [time, treasure] (paper B.1 values, shortest
     /// paths of 1, 3, 5, 7, 8, 9, 13, 14, 17, 19 steps).
     fn dst_front() -> Vec<Vec<f64>> {
-        [(1, 0.7), (3, 8.2), (5, 11.5), (7, 14.0), (8, 15.1), (9, 16.1), (13, 19.6), (14, 20.3), (17, 22.4), (19, 23.7)]
-            .iter()
-            .map(|&(steps, v)| vec![-f64::from(steps), v])
-            .collect()
+        [
+            (1, 0.7),
+            (3, 8.2),
+            (5, 11.5),
+            (7, 14.0),
+            (8, 15.1),
+            (9, 16.1),
+            (13, 19.6),
+            (14, 20.3),
+            (17, 22.4),
+            (19, 23.7),
+        ]
+        .iter()
+        .map(|&(steps, v)| vec![-f64::from(steps), v])
+        .collect()
     }
 
     #[test]
@@ -158,7 +200,10 @@ mod tests {
     #[test]
     fn three_objective_hypervolume_of_boxes() {
         // Union of [0,2]x[0,1]x[0,1] and [0,1]x[0,2]x[0,2]: 2 + 4 - overlap 1x1x1 = 5.
-        let hv = hypervolume(&[vec![2.0, 1.0, 1.0], vec![1.0, 2.0, 2.0]], &[0.0, 0.0, 0.0]);
+        let hv = hypervolume(
+            &[vec![2.0, 1.0, 1.0], vec![1.0, 2.0, 2.0]],
+            &[0.0, 0.0, 0.0],
+        );
         assert!((hv - 5.0).abs() < 1e-12, "{hv}");
     }
 
@@ -177,6 +222,9 @@ mod tests {
     fn simplex_lattice_weights_sum_to_one() {
         let w = simplex_weights(3, 10);
         assert!(w.len() >= 10);
-        assert!(w.iter().all(|v| (v.iter().sum::<f64>() - 1.0).abs() < 1e-12));
+        assert!(
+            w.iter()
+                .all(|v| (v.iter().sum::<f64>() - 1.0).abs() < 1e-12)
+        );
     }
 }

@@ -77,7 +77,10 @@ pub fn save(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
     let svg = stem.with_extension("svg");
     let err = |path: &Path| {
         let path = path.to_path_buf();
-        move |e: Box<dyn std::error::Error>| PlotError::Draw { path: path.clone(), message: e.to_string() }
+        move |e: Box<dyn std::error::Error>| PlotError::Draw {
+            path: path.clone(),
+            message: e.to_string(),
+        }
     };
     {
         let root = BitMapBackend::new(&png, (900, 600)).into_drawing_area();
@@ -94,7 +97,11 @@ pub fn save(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
 
 type DrawResult = Result<Result<(), PlotError>, Box<dyn std::error::Error>>;
 
-fn draw<DB: DrawingBackend>(figure: &Figure, root: &DrawingArea<DB, Shift>, path: &Path) -> DrawResult
+fn draw<DB: DrawingBackend>(
+    figure: &Figure,
+    root: &DrawingArea<DB, Shift>,
+    path: &Path,
+) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
@@ -108,7 +115,12 @@ where
         return Ok(Err(PlotError::Empty(path.to_path_buf())));
     }
     let (mut x0, mut x1, mut y0, mut y1) = finite.iter().fold(
-        (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY),
+        (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ),
         |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
     );
     // Pad so markers on the boundary stay visible; keep a degenerate range drawable.
@@ -126,7 +138,11 @@ where
     pad(&mut y0, &mut y1, false);
     root.fill(&WHITE)?;
     let mut builder = ChartBuilder::on(root);
-    builder.caption(&figure.title, ("sans-serif", 24)).margin(16).x_label_area_size(48).y_label_area_size(64);
+    builder
+        .caption(&figure.title, ("sans-serif", 24))
+        .margin(16)
+        .x_label_area_size(48)
+        .y_label_area_size(64);
     let palette = |i: usize| Palette99::pick(i).to_rgba();
     macro_rules! body {
         ($chart:expr) => {{
@@ -139,15 +155,22 @@ where
                 .draw()?;
             for (i, s) in figure.series.iter().enumerate() {
                 let color = palette(i);
-                let pts = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
+                let pts = s
+                    .points
+                    .iter()
+                    .copied()
+                    .filter(|(x, y)| x.is_finite() && y.is_finite());
                 let anno = match s.kind {
                     SeriesKind::Markers => {
                         chart.draw_series(pts.map(|p| Circle::new(p, 5, color.filled())))?
                     }
-                    SeriesKind::Line => chart.draw_series(LineSeries::new(pts, color.stroke_width(2)))?,
+                    SeriesKind::Line => {
+                        chart.draw_series(LineSeries::new(pts, color.stroke_width(2)))?
+                    }
                 };
-                anno.label(s.label.as_str())
-                    .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
+                anno.label(s.label.as_str()).legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled())
+                });
             }
             chart
                 .configure_series_labels()
@@ -177,7 +200,11 @@ mod tests {
             title: "DST front".into(),
             x_label: "time".into(),
             y_label: "treasure".into(),
-            series: vec![Series { label: "MO-MPO".into(), points: vec![(-1.0, 0.7), (-19.0, 23.7)], kind: SeriesKind::Markers }],
+            series: vec![Series {
+                label: "MO-MPO".into(),
+                points: vec![(-1.0, 0.7), (-19.0, 23.7)],
+                kind: SeriesKind::Markers,
+            }],
             log_x: false,
         };
         let files = save(&figure, &dir.path().join("front")).unwrap();
@@ -196,9 +223,16 @@ mod tests {
             title: "t".into(),
             x_label: "x".into(),
             y_label: "y".into(),
-            series: vec![Series { label: "s".into(), points: vec![(f64::NAN, 1.0)], kind: SeriesKind::Line }],
+            series: vec![Series {
+                label: "s".into(),
+                points: vec![(f64::NAN, 1.0)],
+                kind: SeriesKind::Line,
+            }],
             log_x: false,
         };
-        assert!(matches!(save(&figure, &dir.path().join("f")), Err(PlotError::Empty(_))));
+        assert!(matches!(
+            save(&figure, &dir.path().join("f")),
+            Err(PlotError::Empty(_))
+        ));
     }
 }

@@ -157,7 +157,11 @@ impl TrainConfig {
     /// Check the run and learner fields.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let invalid = |field: &str, requirement: &str, got: String| {
-            Err(ConfigError::Invalid { field: field.into(), requirement: requirement.into(), got })
+            Err(ConfigError::Invalid {
+                field: field.into(),
+                requirement: requirement.into(),
+                got,
+            })
         };
         if self.env.id.is_empty() {
             return invalid("env.id", "a registered env id", "\"\"".into());
@@ -177,7 +181,11 @@ impl TrainConfig {
         }
         let r = &self.run;
         if !(r.learner_steps_per_env_step.is_finite() && r.learner_steps_per_env_step > 0.0) {
-            return invalid("run.learner_steps_per_env_step", "> 0", r.learner_steps_per_env_step.to_string());
+            return invalid(
+                "run.learner_steps_per_env_step",
+                "> 0",
+                r.learner_steps_per_env_step.to_string(),
+            );
         }
         for (field, v) in [
             ("run.publish_period", r.publish_period),
@@ -189,10 +197,18 @@ impl TrainConfig {
             }
         }
         if let Some((name, v)) = r.solve_threshold.iter().find(|(_, v)| !v.is_finite()) {
-            return invalid(&format!("run.solve_threshold.{name}"), "finite", v.to_string());
+            return invalid(
+                &format!("run.solve_threshold.{name}"),
+                "finite",
+                v.to_string(),
+            );
         }
         if r.stop_on_solve && r.solve_threshold.is_empty() {
-            return invalid("run.stop_on_solve", "false unless run.solve_threshold names a threshold", "true".into());
+            return invalid(
+                "run.stop_on_solve",
+                "false unless run.solve_threshold names a threshold",
+                "true".into(),
+            );
         }
         if r.min_replay_transitions == 0 {
             return invalid("run.min_replay_transitions", ">= 1", "0".into());
@@ -209,8 +225,14 @@ impl TrainConfig {
 /// Sets `dotted.path=value` in `table`; the value is TOML (`64`, `1e-3`, `"dst"`,
 /// `{ task = -200.0 }`), and a path segment that is a number indexes an array.
 fn apply_override(table: &mut toml::Table, text: &str) -> Result<(), ConfigError> {
-    let bad = |requirement: &str| ConfigError::Invalid { field: "--set".into(), requirement: requirement.into(), got: format!("{text:?}") };
-    let (path, value) = text.split_once('=').ok_or_else(|| bad("dotted.path=value"))?;
+    let bad = |requirement: &str| ConfigError::Invalid {
+        field: "--set".into(),
+        requirement: requirement.into(),
+        got: format!("{text:?}"),
+    };
+    let (path, value) = text
+        .split_once('=')
+        .ok_or_else(|| bad("dotted.path=value"))?;
     let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
         .map_err(|_| bad("a TOML value after '=' (strings in quotes)"))?
         .remove("v")
@@ -221,12 +243,18 @@ fn apply_override(table: &mut toml::Table, text: &str) -> Result<(), ConfigError
     // Walk tables by name; a numeric segment picks an array's item, which must be a table.
     let mut segments = parents.iter().peekable();
     while let Some(key) = segments.next() {
-        let child = node.entry(key.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        let child = node
+            .entry(key.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
         node = match child {
             toml::Value::Table(t) => t,
             toml::Value::Array(items) => {
-                let index = segments.next().ok_or_else(|| bad("an array item's field, e.g. objectives.1.epsilon"))?;
-                let i: usize = index.parse().map_err(|_| bad("a number to index an array"))?;
+                let index = segments
+                    .next()
+                    .ok_or_else(|| bad("an array item's field, e.g. objectives.1.epsilon"))?;
+                let i: usize = index
+                    .parse()
+                    .map_err(|_| bad("a number to index an array"))?;
                 match items.get_mut(i) {
                     Some(toml::Value::Table(t)) => t,
                     Some(_) => return Err(bad("an array of tables")),
@@ -254,7 +282,10 @@ mod tests {
         )
         .unwrap();
         let cfg = TrainConfig::load(&path).unwrap();
-        assert_eq!((cfg.env.num_envs, cfg.env.num_actors, cfg.learner.seed), (8, 1, 5));
+        assert_eq!(
+            (cfg.env.num_envs, cfg.env.num_actors, cfg.learner.seed),
+            (8, 1, 5)
+        );
         assert_eq!(cfg.run, RunConfig::default());
     }
 
@@ -264,15 +295,37 @@ mod tests {
         let path = dir.path().join("c.toml");
         let text = "[env]\nid = \"dst\"\n[[learner.objectives]]\nname = \"time\"\nepsilon = 0.01\n[[learner.objectives]]\nname = \"treasure\"\nepsilon = 0.5\n";
         std::fs::write(&path, text).unwrap();
-        let sets = ["learner.mpo.batch_size=64", "learner.objectives.1.epsilon=0.0", "run.solve_threshold={ treasure = 20.0 }", "seed=7"];
+        let sets = [
+            "learner.mpo.batch_size=64",
+            "learner.objectives.1.epsilon=0.0",
+            "run.solve_threshold={ treasure = 20.0 }",
+            "seed=7",
+        ];
         let cfg = TrainConfig::load_with(&path, &sets.map(String::from)).unwrap();
-        assert_eq!((cfg.learner.mpo.batch_size, cfg.learner.objectives[1].epsilon, cfg.seed, cfg.learner.seed), (64, 0.0, 7, 7));
+        assert_eq!(
+            (
+                cfg.learner.mpo.batch_size,
+                cfg.learner.objectives[1].epsilon,
+                cfg.seed,
+                cfg.learner.seed
+            ),
+            (64, 0.0, 7, 7)
+        );
         assert_eq!(cfg.run.solve_threshold["treasure"], 20.0);
-        let err = TrainConfig::load_with(&path, &["learner.objectives.5.epsilon=0".into()]).unwrap_err().to_string();
-        assert_eq!(err, r#"--set must be an index inside the array, got "learner.objectives.5.epsilon=0""#);
-        let err = TrainConfig::load_with(&path, &["learner.mpo.batch_size".into()]).unwrap_err().to_string();
+        let err = TrainConfig::load_with(&path, &["learner.objectives.5.epsilon=0".into()])
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            err,
+            r#"--set must be an index inside the array, got "learner.objectives.5.epsilon=0""#
+        );
+        let err = TrainConfig::load_with(&path, &["learner.mpo.batch_size".into()])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("dotted.path=value"), "{err}");
-        let err = TrainConfig::load_with(&path, &["learner.mpo.batch_sise=3".into()]).unwrap_err().to_string();
+        let err = TrainConfig::load_with(&path, &["learner.mpo.batch_sise=3".into()])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("batch_sise"), "{err}");
     }
 
@@ -285,7 +338,10 @@ mod tests {
         assert_eq!(err, "env.num_envs must be >= 1, got 0");
         std::fs::write(&path, "[env]\nid = \"dst\"\nnum_envs = 4\nworkers = 4\n").unwrap();
         let err = TrainConfig::load(&path).unwrap_err().to_string();
-        assert_eq!(err, "env.workers must be at most env.num_envs - 1 = 3, got 4");
+        assert_eq!(
+            err,
+            "env.workers must be at most env.num_envs - 1 = 3, got 4"
+        );
         std::fs::write(&path, "[env]\nid = \"dst\"\nnum_env = 3\n").unwrap();
         let err = TrainConfig::load(&path).unwrap_err().to_string();
         assert!(err.contains("num_env"), "{err}");

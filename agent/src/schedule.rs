@@ -25,7 +25,9 @@ impl Counters {
     pub fn recent_mean_return(&self) -> Vec<f64> {
         let n = self.recent_returns.len() as f64;
         let k = self.recent_returns.front().map_or(0, Vec::len);
-        (0..k).map(|i| self.recent_returns.iter().map(|r| r[i]).sum::<f64>() / n).collect()
+        (0..k)
+            .map(|i| self.recent_returns.iter().map(|r| r[i]).sum::<f64>() / n)
+            .collect()
     }
 }
 
@@ -126,7 +128,10 @@ impl Schedule {
     /// Learner steps allowed in total with `c` and the replay at `fill`.
     fn allowed(&self, c: &Counters, fill: Fill) -> u64 {
         match self.pace {
-            Pace::Ratio { learner_steps_per_env_step, min_replay_transitions } => {
+            Pace::Ratio {
+                learner_steps_per_env_step,
+                min_replay_transitions,
+            } => {
                 let min_replay = min_replay_transitions as u64;
                 if fill.transitions < min_replay {
                     return c.learner_steps;
@@ -134,13 +139,18 @@ impl Schedule {
                 let warm = c.env_steps.saturating_sub(min_replay) as f64;
                 (warm * learner_steps_per_env_step).floor() as u64
             }
-            Pace::OnPolicy { batch_size } => self.learner_steps_at_start + fill.inserted / batch_size as u64,
+            Pace::OnPolicy { batch_size } => {
+                self.learner_steps_at_start + fill.inserted / batch_size as u64
+            }
         }
     }
 
     fn fill(&self) -> Fill {
         let r = self.replay.lock().unwrap_or_else(|e| e.into_inner());
-        Fill { transitions: (r.len() * r.layout().length) as u64, inserted: r.inserted() }
+        Fill {
+            transitions: (r.len() * r.layout().length) as u64,
+            inserted: r.inserted(),
+        }
     }
 
     /// Record env steps and finished episodes' returns from an actor; wake the learner.
@@ -236,9 +246,23 @@ mod tests {
     use crate::replay::{Snippet, SnippetLayout};
 
     fn schedule(ratio: f64, min_replay: usize) -> Schedule {
-        let layout = SnippetLayout { length: 1, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true, on_policy: false };
-        let pace = Pace::Ratio { learner_steps_per_env_step: ratio, min_replay_transitions: min_replay };
-        Schedule::new(SnippetReplay::new(layout, 1000, 0), pace, Counters::default())
+        let layout = SnippetLayout {
+            length: 1,
+            obs_dim: 1,
+            action_width: 1,
+            num_rewards: 1,
+            discrete: true,
+            on_policy: false,
+        };
+        let pace = Pace::Ratio {
+            learner_steps_per_env_step: ratio,
+            min_replay_transitions: min_replay,
+        };
+        Schedule::new(
+            SnippetReplay::new(layout, 1000, 0),
+            pace,
+            Counters::default(),
+        )
     }
 
     fn fill(s: &Schedule, n: usize) {
@@ -271,20 +295,42 @@ mod tests {
         assert!(s.wait_for_work());
         s.learner_stepped();
         s.stop(None);
-        assert!(!s.wait_for_work(), "no third step: the budget is 2, and the run stopped");
+        assert!(
+            !s.wait_for_work(),
+            "no third step: the budget is 2, and the run stopped"
+        );
     }
 
     #[test]
     fn on_policy_allows_one_step_per_batch_of_unrolls() {
-        let layout = SnippetLayout { length: 1, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true, on_policy: true };
-        let s = Schedule::new(SnippetReplay::new(layout, usize::MAX, 0), Pace::OnPolicy { batch_size: 4 }, Counters::default());
+        let layout = SnippetLayout {
+            length: 1,
+            obs_dim: 1,
+            action_width: 1,
+            num_rewards: 1,
+            discrete: true,
+            on_policy: true,
+        };
+        let s = Schedule::new(
+            SnippetReplay::new(layout, usize::MAX, 0),
+            Pace::OnPolicy { batch_size: 4 },
+            Counters::default(),
+        );
         fill(&s, 3);
         assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "3 of 4 unrolls");
         fill(&s, 6);
-        assert_eq!(s.allowed(&s.counters(), s.fill()), 2, "9 unrolls make two batches");
+        assert_eq!(
+            s.allowed(&s.counters(), s.fill()),
+            2,
+            "9 unrolls make two batches"
+        );
         assert_eq!(s.replay.lock().unwrap().sample(4).batch_size(), 4);
         s.learner_stepped();
-        assert_eq!(s.allowed(&s.counters(), s.fill()), 2, "consuming a batch does not change the budget");
+        assert_eq!(
+            s.allowed(&s.counters(), s.fill()),
+            2,
+            "consuming a batch does not change the budget"
+        );
     }
 
     #[tokio::test]
@@ -305,8 +351,14 @@ mod tests {
                 }
             })
         };
-        tokio::time::timeout(std::time::Duration::from_secs(10), s.wait_for_learner()).await.unwrap();
-        assert_eq!(s.counters().learner_steps, 2, "(3 - 1) * 1.0 learner steps before the actor resumes");
+        tokio::time::timeout(std::time::Duration::from_secs(10), s.wait_for_learner())
+            .await
+            .unwrap();
+        assert_eq!(
+            s.counters().learner_steps,
+            2,
+            "(3 - 1) * 1.0 learner steps before the actor resumes"
+        );
         learner.join().unwrap();
     }
 }

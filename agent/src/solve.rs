@@ -39,22 +39,38 @@ pub struct SolveTracker {
 impl SolveTracker {
     /// Binds `thresholds` (objective name -> return) to the env's objectives; an
     /// unknown name is an error naming `run.solve_threshold`.
-    pub fn new(thresholds: &BTreeMap<String, f64>, objectives: &[String]) -> Result<Self, ConfigError> {
+    pub fn new(
+        thresholds: &BTreeMap<String, f64>,
+        objectives: &[String],
+    ) -> Result<Self, ConfigError> {
         let mut bound = Vec::new();
         for (name, &value) in thresholds {
-            let column = objectives.iter().position(|o| o == name).ok_or_else(|| ConfigError::Invalid {
-                field: format!("run.solve_threshold.{name}"),
-                requirement: format!("an objective of the env, one of {objectives:?}"),
-                got: format!("{name:?}"),
-            })?;
+            let column =
+                objectives
+                    .iter()
+                    .position(|o| o == name)
+                    .ok_or_else(|| ConfigError::Invalid {
+                        field: format!("run.solve_threshold.{name}"),
+                        requirement: format!("an objective of the env, one of {objectives:?}"),
+                        got: format!("{name:?}"),
+                    })?;
             bound.push((column, value));
         }
-        Ok(Self { thresholds: bound, ..Self::default() })
+        Ok(Self {
+            thresholds: bound,
+            ..Self::default()
+        })
     }
 
     /// Records one finished episode; returns the record the first time the run counts
     /// as solved.
-    pub fn observe(&mut self, episode_return: &[f64], env_steps: u64, episodes: u64, wall_seconds: f64) -> Option<&SolveRecord> {
+    pub fn observe(
+        &mut self,
+        episode_return: &[f64],
+        env_steps: u64,
+        episodes: u64,
+        wall_seconds: f64,
+    ) -> Option<&SolveRecord> {
         if self.thresholds.is_empty() || self.solved.is_some() {
             return None;
         }
@@ -67,9 +83,20 @@ impl SolveTracker {
         }
         let k = episode_return.len();
         let n = self.recent.len() as f64;
-        let running_mean: Vec<f64> = (0..k).map(|i| self.recent.iter().map(|r| r[i]).sum::<f64>() / n).collect();
-        if self.thresholds.iter().all(|&(column, threshold)| running_mean[column] >= threshold) {
-            self.solved = Some(SolveRecord { env_steps, wall_seconds, episodes, running_mean });
+        let running_mean: Vec<f64> = (0..k)
+            .map(|i| self.recent.iter().map(|r| r[i]).sum::<f64>() / n)
+            .collect();
+        if self
+            .thresholds
+            .iter()
+            .all(|&(column, threshold)| running_mean[column] >= threshold)
+        {
+            self.solved = Some(SolveRecord {
+                env_steps,
+                wall_seconds,
+                episodes,
+                running_mean,
+            });
         }
         self.solved.as_ref()
     }
@@ -91,7 +118,10 @@ mod tests {
         let mut t = SolveTracker::new(&thresholds, &names).unwrap();
         // Nine good episodes are not a window of ten.
         for i in 0..9 {
-            assert!(t.observe(&[-100.0, -50.0], 200 * (i + 1), i + 1, 1.0).is_none());
+            assert!(
+                t.observe(&[-100.0, -50.0], 200 * (i + 1), i + 1, 1.0)
+                    .is_none()
+            );
         }
         // Tenth: mean of (9 x -100 + -1200) / 10 = -210 < -200.
         assert!(t.observe(&[-1200.0, -50.0], 2000, 10, 2.0).is_none());
@@ -102,7 +132,12 @@ mod tests {
         }
         // The -1200 has left the window after 10 more episodes.
         let got = t.observe(&[-150.0, -50.0], 4000, 20, 5.0).cloned();
-        let want = SolveRecord { env_steps: 4000, wall_seconds: 5.0, episodes: 20, running_mean: vec![-105.0, -50.0] };
+        let want = SolveRecord {
+            env_steps: 4000,
+            wall_seconds: 5.0,
+            episodes: 20,
+            running_mean: vec![-105.0, -50.0],
+        };
         assert_eq!(got, Some(want.clone()));
         // Later episodes do not move the first record.
         assert!(t.observe(&[-2000.0, 0.0], 4200, 21, 6.0).is_none());
@@ -112,7 +147,12 @@ mod tests {
     #[test]
     fn unknown_objectives_are_named() {
         let thresholds = BTreeMap::from([("taks".to_string(), -200.0)]);
-        let err = SolveTracker::new(&thresholds, &["task".to_string()]).unwrap_err().to_string();
-        assert_eq!(err, r#"run.solve_threshold.taks must be an objective of the env, one of ["task"], got "taks""#);
+        let err = SolveTracker::new(&thresholds, &["task".to_string()])
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            err,
+            r#"run.solve_threshold.taks must be an objective of the env, one of ["task"], got "taks""#
+        );
     }
 }

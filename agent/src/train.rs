@@ -16,7 +16,6 @@ use tch::Device;
 use tokio::sync::watch;
 
 use crate::actor::{ActorContext, run_actor};
-use crate::eval::evaluate;
 use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
@@ -24,6 +23,7 @@ use crate::device::{choose_device, configure_threads};
 use crate::env::grpc::EnvClient;
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
+use crate::eval::evaluate;
 use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::{ActionKind, ActorPolicy};
@@ -69,7 +69,10 @@ pub enum TrainError {
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
-    move |source| TrainError::Io { path: path.to_path_buf(), source }
+    move |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 /// How to run `train`.
@@ -118,7 +121,11 @@ pub struct TrainSummary {
 }
 
 /// Run one training job against the servers at `addresses` (round-robin per actor).
-pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions) -> Result<TrainSummary, TrainError> {
+pub async fn train(
+    cfg: TrainConfig,
+    addresses: &[String],
+    options: TrainOptions,
+) -> Result<TrainSummary, TrainError> {
     let started = Instant::now();
     configure_threads(cfg.learner.num_threads);
     let clients = connect_all(addresses).await?;
@@ -148,7 +155,11 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
                 source: std::io::Error::other(e),
             })?;
             std::fs::write(dir.join("config.toml"), text).map_err(io(&dir))?;
-            (dir, Learner::new(cfg.learner.clone(), dims.clone(), device)?, Counters::default())
+            (
+                dir,
+                Learner::new(cfg.learner.clone(), dims.clone(), device)?,
+                Counters::default(),
+            )
         }
     };
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
@@ -167,7 +178,12 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     };
     let (capacity, pace) = if on_policy {
         // The queue never holds much more than one batch: actors wait for the learner.
-        (usize::MAX, Pace::OnPolicy { batch_size: settings.batch_size })
+        (
+            usize::MAX,
+            Pace::OnPolicy {
+                batch_size: settings.batch_size,
+            },
+        )
     } else {
         let pace = Pace::Ratio {
             learner_steps_per_env_step: cfg.run.learner_steps_per_env_step,
@@ -203,7 +219,9 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     let mut actors = Vec::new();
     for a in 0..cfg.env.num_actors {
         let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
-        policy.load(&params_rx.borrow()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+        policy
+            .load(&params_rx.borrow())
+            .map_err(|e| TrainError::Stopped(e.to_string()))?;
         let ctx = ActorContext {
             id: a,
             client: clients[a % clients.len()].clone(),
@@ -228,7 +246,12 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
 
     let bar = progress_bar(options.progress, &cfg, &schedule);
     let ticker = {
-        let (schedule, latest, bar, names) = (schedule.clone(), latest.clone(), bar.clone(), objectives.clone());
+        let (schedule, latest, bar, names) = (
+            schedule.clone(),
+            latest.clone(),
+            bar.clone(),
+            objectives.clone(),
+        );
         tokio::spawn(async move {
             loop {
                 tokio::select! {
@@ -240,7 +263,11 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
                 }
                 let c = schedule.counters();
                 bar.set_position(c.env_steps);
-                bar.set_message(progress_message(&c, &names, latest.lock().unwrap_or_else(|e| e.into_inner()).as_ref()));
+                bar.set_message(progress_message(
+                    &c,
+                    &names,
+                    latest.lock().unwrap_or_else(|e| e.into_inner()).as_ref(),
+                ));
                 if c.stop {
                     break;
                 }
@@ -267,7 +294,9 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
     let learner = learner?;
 
     let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
-    policy.load(&learner.policy_snapshot()).map_err(|e| TrainError::Stopped(e.to_string()))?;
+    policy
+        .load(&learner.policy_snapshot())
+        .map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
     let eval = evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?;
     let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
@@ -296,7 +325,9 @@ pub async fn train(cfg: TrainConfig, addresses: &[String], options: TrainOptions
 pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
     let rows: Vec<&Vec<f64>> = rows.collect();
     let k = rows.first().map_or(0, |r| r.len());
-    (0..k).map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64).collect()
+    (0..k)
+        .map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64)
+        .collect()
 }
 
 pub(crate) async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, EnvError> {
@@ -305,13 +336,21 @@ pub(crate) async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, 
         clients.push(EnvClient::connect(address).await?);
     }
     if clients.is_empty() {
-        return Err(EnvError::BadInput { field: "servers".into(), expected: "at least one address".into(), got: "none".into() });
+        return Err(EnvError::BadInput {
+            field: "servers".into(),
+            expected: "at least one address".into(),
+            got: "none".into(),
+        });
     }
     Ok(clients)
 }
 
 pub(crate) fn make_options(cfg: &TrainConfig, num_envs: usize, seed: u64) -> MakeOptions {
-    MakeOptions { kwargs: cfg.env.kwargs.clone(), seed: Some(seed), ..MakeOptions::new(&cfg.env.id, num_envs) }
+    MakeOptions {
+        kwargs: cfg.env.kwargs.clone(),
+        seed: Some(seed),
+        ..MakeOptions::new(&cfg.env.id, num_envs)
+    }
 }
 
 /// The env's spec, from a one-instance session made and closed at once.
@@ -323,9 +362,25 @@ pub(crate) async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<
 }
 
 fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
-    let time = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0);
-    let task: String = cfg.env.id.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
-    cfg.run.runs_dir.join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
+    let time = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis())
+        .unwrap_or(0);
+    let task: String = cfg
+        .env
+        .id
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    cfg.run
+        .runs_dir
+        .join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
 }
 
 fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> ProgressBar {
@@ -333,20 +388,44 @@ fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> Progre
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(cfg.run.total_env_steps).with_style(
-        ProgressStyle::with_template("{bar:30} {pos:>8}/{len} env steps [{elapsed_precise}<{eta}] {msg}")
-            .expect("valid template"),
+        ProgressStyle::with_template(
+            "{bar:30} {pos:>8}/{len} env steps [{elapsed_precise}<{eta}] {msg}",
+        )
+        .expect("valid template"),
     );
     bar.set_position(schedule.counters().env_steps);
     bar
 }
 
-fn progress_message(c: &Counters, names: &[String], stats: Option<&crate::algo::LearnerStats>) -> String {
-    let fmt = |v: &[f64]| v.iter().map(|x| format!("{x:.2}")).collect::<Vec<_>>().join(", ");
-    let mut msg = format!("learner {} | ep {} | return [{}]=[{}]", c.learner_steps, c.episodes, names.join(", "), fmt(&c.recent_mean_return()));
+fn progress_message(
+    c: &Counters,
+    names: &[String],
+    stats: Option<&crate::algo::LearnerStats>,
+) -> String {
+    let fmt = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.2}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut msg = format!(
+        "learner {} | ep {} | return [{}]=[{}]",
+        c.learner_steps,
+        c.episodes,
+        names.join(", "),
+        fmt(&c.recent_mean_return())
+    );
     if let Some(s) = stats {
         let eta: Vec<f64> = s.temperature.iter().map(|&x| f64::from(x)).collect();
         let kl: Vec<f64> = s.policy_kl.iter().map(|&x| f64::from(x)).collect();
-        msg.push_str(&format!(" | eta [{}] | KL [{}]", fmt(&eta), kl.iter().map(|x| format!("{x:.1e}")).collect::<Vec<_>>().join(", ")));
+        msg.push_str(&format!(
+            " | eta [{}] | KL [{}]",
+            fmt(&eta),
+            kl.iter()
+                .map(|x| format!("{x:.1e}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
     }
     msg
 }
@@ -356,8 +435,15 @@ fn progress_message(c: &Counters, names: &[String], stats: Option<&crate::algo::
 fn plot_curves(run_dir: &Path, objectives: &[String]) -> Result<(), TrainError> {
     let path = run_dir.join("episodes.csv");
     let text = std::fs::read_to_string(&path).map_err(io(&path))?;
-    let rows: Vec<Vec<f64>> =
-        text.lines().skip(1).map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect()).collect();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse::<f64>().unwrap_or(f64::NAN))
+                .collect()
+        })
+        .collect();
     let mut series = Vec::new();
     for (k, name) in objectives.iter().enumerate() {
         let mut points = Vec::new();
@@ -369,13 +455,23 @@ fn plot_curves(run_dir: &Path, objectives: &[String]) -> Result<(), TrainError> 
             }
             points.push((r[0], window.iter().sum::<f64>() / window.len() as f64));
         }
-        series.push(Series { label: name.clone(), points, kind: SeriesKind::Line });
+        series.push(Series {
+            label: name.clone(),
+            points,
+            kind: SeriesKind::Line,
+        });
     }
     if rows.is_empty() {
         return Ok(());
     }
     let figure = Figure {
-        title: format!("training returns ({})", run_dir.file_name().map(|n| n.to_string_lossy()).unwrap_or_default()),
+        title: format!(
+            "training returns ({})",
+            run_dir
+                .file_name()
+                .map(|n| n.to_string_lossy())
+                .unwrap_or_default()
+        ),
         x_label: "env steps".into(),
         y_label: "episode return (mean of 20)".into(),
         series,

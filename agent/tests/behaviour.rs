@@ -4,7 +4,7 @@
 //!
 //! Tests that seed libtorch's global RNG hold `RNG` so they do not interleave.
 
-use agent::algo::{LearnerDims, Learner};
+use agent::algo::{Learner, LearnerDims};
 use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
 use agent::nets::ActionKind;
 use std::sync::Mutex;

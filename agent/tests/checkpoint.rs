@@ -23,19 +23,41 @@ fn trained_and_restored(mut learner: Learner, dir: &std::path::Path) -> (Learner
     assert_eq!(restored.step_count(), 3);
     assert_eq!(restored.policy_snapshot(), learner.policy_snapshot());
     let obs = Tensor::randn([7, 3], (Kind::Float, Device::Cpu));
-    assert!(restored.act(&obs, true).actions.equal(&learner.act(&obs, true).actions));
+    assert!(
+        restored
+            .act(&obs, true)
+            .actions
+            .equal(&learner.act(&obs, true).actions)
+    );
     (learner, restored)
 }
 
 /// One step of each on the same batch and random stream must report the same.
-fn step_alike(a: &mut Learner, b: &mut Learner, batch: &agent::algo::SnippetBatch, seed: i64) -> Vec<f32> {
+fn step_alike(
+    a: &mut Learner,
+    b: &mut Learner,
+    batch: &agent::algo::SnippetBatch,
+    seed: i64,
+) -> Vec<f32> {
     tch::manual_seed(seed);
     let x = a.step(batch).unwrap();
     tch::manual_seed(seed);
     let y = b.step(batch).unwrap();
     assert_eq!(
-        (x.step, &x.critic_loss, &x.temperature, &x.alpha, &x.policy_kl),
-        (y.step, &y.critic_loss, &y.temperature, &y.alpha, &y.policy_kl)
+        (
+            x.step,
+            &x.critic_loss,
+            &x.temperature,
+            &x.alpha,
+            &x.policy_kl
+        ),
+        (
+            y.step,
+            &y.critic_loss,
+            &y.temperature,
+            &y.alpha,
+            &y.policy_kl
+        )
     );
     x.critic_loss
 }

@@ -124,7 +124,10 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
         mean: tensor(&g["online_mean"]).set_requires_grad(true),
         std: tensor(&g["online_std"]).set_requires_grad(true),
     };
-    let target = GaussianParams { mean: tensor(&g["target_mean"]), std: tensor(&g["target_std"]) };
+    let target = GaussianParams {
+        mean: tensor(&g["target_mean"]),
+        std: tensor(&g["target_std"]),
+    };
     let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
     let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
     let region = TrustRegion {
@@ -134,21 +137,49 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
         beta_cov: scalar(&g["beta_cov"]),
     };
     let out = gaussian_mstep(&online, &target, actions, weights, &region);
-    assert_close_scalar(out.kl_mean.double_value(&[]), scalar(&g["kl_mean"]), "KL_mu");
-    assert_close_scalar(out.kl_cov.double_value(&[]), scalar(&g["kl_cov"]), "KL_Sigma");
-    assert_close_scalar(out.policy_loss.double_value(&[]), scalar(&g["policy_loss"]), "policy loss");
-    assert_close_scalar(out.alpha_loss.double_value(&[]), scalar(&g["alpha_loss"]), "alpha loss");
+    assert_close_scalar(
+        out.kl_mean.double_value(&[]),
+        scalar(&g["kl_mean"]),
+        "KL_mu",
+    );
+    assert_close_scalar(
+        out.kl_cov.double_value(&[]),
+        scalar(&g["kl_cov"]),
+        "KL_Sigma",
+    );
+    assert_close_scalar(
+        out.policy_loss.double_value(&[]),
+        scalar(&g["policy_loss"]),
+        "policy loss",
+    );
+    assert_close_scalar(
+        out.alpha_loss.double_value(&[]),
+        scalar(&g["alpha_loss"]),
+        "alpha loss",
+    );
     (out.policy_loss + out.alpha_loss).backward();
     assert_close_scalar(
         alpha_mean.grad().double_value(&[]),
         scalar(&g["grad_alpha_mean"]),
         "d/d alpha_mu = beta_mu - KL_mu",
     );
-    assert_close_scalar(alpha_cov.grad().double_value(&[]), scalar(&g["grad_alpha_cov"]), "d/d alpha_Sigma");
+    assert_close_scalar(
+        alpha_cov.grad().double_value(&[]),
+        scalar(&g["grad_alpha_cov"]),
+        "d/d alpha_Sigma",
+    );
     // Stop-gradients: alpha enters the policy loss only as a constant, the KL enters
     // the alpha loss only as a constant, so the policy gradients match PyTorch's.
-    assert_close(&online.mean.grad(), &tensor(&g["grad_online_mean"]), "d/d mu");
-    assert_close(&online.std.grad(), &tensor(&g["grad_online_std"]), "d/d sigma");
+    assert_close(
+        &online.mean.grad(),
+        &tensor(&g["grad_online_mean"]),
+        "d/d mu",
+    );
+    assert_close(
+        &online.std.grad(),
+        &tensor(&g["grad_online_std"]),
+        "d/d sigma",
+    );
 }
 
 #[test]
@@ -227,12 +258,24 @@ fn vmpo_top_k_weights_temperature_loss_and_kl() {
         &vector(&g["epsilon"]),
         scalar(&g["fraction"]),
     );
-    assert_close(&out.selected, &tensor(&g["selected"]), "top-k selection (ties in, ineligible out)");
+    assert_close(
+        &out.selected,
+        &tensor(&g["selected"]),
+        "top-k selection (ties in, ineligible out)",
+    );
     assert_close(&out.weights, &tensor(&g["weights"]), "weights");
     assert_close(&out.kl, &vector(&g["kl"]), "KL(q_k || p_old)");
-    assert_close_scalar(out.temperature_loss.double_value(&[]), scalar(&g["temperature_loss"]), "eq. 24 loss");
+    assert_close_scalar(
+        out.temperature_loss.double_value(&[]),
+        scalar(&g["temperature_loss"]),
+        "eq. 24 loss",
+    );
     out.temperature_loss.backward();
-    assert_close(&param.grad(), &vector(&g["grad_temperature_param"]), "d loss / d eta param");
+    assert_close(
+        &param.grad(),
+        &vector(&g["grad_temperature_param"]),
+        "d loss / d eta param",
+    );
 }
 
 #[test]
@@ -247,7 +290,11 @@ fn vmpo_unroll_targets_bootstrap_and_cut_like_the_reference() {
     });
     // Padding steps have no target of their own; compare real steps only.
     let mask = tensor(&g["valid_mask"]).unsqueeze(-1);
-    assert_close(&(targets * &mask), &(tensor(&g["targets"]) * &mask), "T-step targets");
+    assert_close(
+        &(targets * &mask),
+        &(tensor(&g["targets"]) * &mask),
+        "T-step targets",
+    );
 }
 
 #[test]
@@ -257,5 +304,9 @@ fn vmpo_policy_fit_and_multiplier_losses() {
     // weights scaled by N, because the M-step averages over states (as movmpo.rs does).
     let w = vector(&g["weights"]);
     let n = w.size()[0] as f64;
-    check_gaussian_mstep(&g, &tensor(&g["actions"]).unsqueeze(0), &(w * n).unsqueeze(0));
+    check_gaussian_mstep(
+        &g,
+        &tensor(&g["actions"]).unsqueeze(0),
+        &(w * n).unsqueeze(0),
+    );
 }

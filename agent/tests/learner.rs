@@ -98,7 +98,8 @@ fn mis_shaped_batch_is_rejected_with_the_shapes() {
 #[test]
 fn policy_snapshot_drives_an_actor_policy() {
     let learner = continuous_learner();
-    let mut actor = agent::nets::ActorPolicy::new(&learner.config().network, learner.dims(), Device::Cpu);
+    let mut actor =
+        agent::nets::ActorPolicy::new(&learner.config().network, learner.dims(), Device::Cpu);
     actor.load(&learner.policy_snapshot()).unwrap();
     let obs = Tensor::randn([4, 3], (Kind::Float, Device::Cpu));
     assert!(

@@ -11,12 +11,19 @@ use agent::learner::latest_checkpoint;
 
 fn agent_cmd(args: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_agent"));
-    c.args(args).env("RUST_LOG", "warn").stdout(Stdio::null()).stderr(Stdio::null());
+    c.args(args)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
     c
 }
 
 fn run_dir_in(runs: &Path) -> Option<PathBuf> {
-    std::fs::read_dir(runs).ok()?.filter_map(|e| e.ok()).map(|e| e.path()).find(|p| p.is_dir())
+    std::fs::read_dir(runs)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .find(|p| p.is_dir())
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -25,17 +32,28 @@ async fn kill_9_then_resume_continues_from_the_last_checkpoint() {
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs");
     let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
-    let text = std::fs::read_to_string(smoke).unwrap().replace("[run]\n", &format!("[run]\nruns_dir = {runs:?}\n"));
+    let text = std::fs::read_to_string(smoke)
+        .unwrap()
+        .replace("[run]\n", &format!("[run]\nruns_dir = {runs:?}\n"));
     let config = dir.path().join("dst.toml");
     std::fs::write(&config, text).unwrap();
 
-    let mut child = agent_cmd(&["train", "--config", config.to_str().unwrap(), "--server", server.address()])
-        .spawn()
-        .unwrap();
+    let mut child = agent_cmd(&[
+        "train",
+        "--config",
+        config.to_str().unwrap(),
+        "--server",
+        server.address(),
+    ])
+    .spawn()
+    .unwrap();
     // Wait for the second checkpoint (learner step 200), then kill -9.
     let started = Instant::now();
     let run_dir = loop {
-        assert!(started.elapsed() < Duration::from_secs(180), "no checkpoint within 180 s");
+        assert!(
+            started.elapsed() < Duration::from_secs(180),
+            "no checkpoint within 180 s"
+        );
         if let Some(run) = run_dir_in(&runs)
             && let Ok((_, progress)) = latest_checkpoint(&run)
             && progress.learner_steps >= 200
@@ -46,16 +64,29 @@ async fn kill_9_then_resume_continues_from_the_last_checkpoint() {
     };
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    let (ckpt, before) = latest_checkpoint(&run_dir).expect("a complete checkpoint survives kill -9");
-    assert!(ckpt.join("params.safetensors").exists() && ckpt.join("optimizer.safetensors").exists());
-    let episodes_before = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap().lines().count();
+    let (ckpt, before) =
+        latest_checkpoint(&run_dir).expect("a complete checkpoint survives kill -9");
+    assert!(
+        ckpt.join("params.safetensors").exists() && ckpt.join("optimizer.safetensors").exists()
+    );
+    let episodes_before = std::fs::read_to_string(run_dir.join("episodes.csv"))
+        .unwrap()
+        .lines()
+        .count();
 
-    let status = agent_cmd(&["train", "--resume", run_dir.to_str().unwrap(), "--server", server.address()])
-        .status()
-        .unwrap();
+    let status = agent_cmd(&[
+        "train",
+        "--resume",
+        run_dir.to_str().unwrap(),
+        "--server",
+        server.address(),
+    ])
+    .status()
+    .unwrap();
     assert!(status.success());
     let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run_dir.join("summary.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("summary.json")).unwrap())
+            .unwrap();
     assert_eq!(summary["env_steps"].as_u64().unwrap(), 8000);
     // The learner's own step counter (restored from the checkpoint) ends where the
     // schedule says: (8000 - 500 warm-up) * 0.25 = 1875. A learner rebuilt from
@@ -66,11 +97,26 @@ async fn kill_9_then_resume_continues_from_the_last_checkpoint() {
     // The env-step counter continued too: the first episode logged after the
     // resume is stamped beyond the checkpoint's env steps.
     let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
-    let stamps: Vec<u64> = text.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
-    let first_resumed = stamps[episodes_before - 1..].iter().copied().next().unwrap();
-    assert!(first_resumed > before.env_steps, "{first_resumed} <= {}", before.env_steps);
+    let stamps: Vec<u64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    let first_resumed = stamps[episodes_before - 1..]
+        .iter()
+        .copied()
+        .next()
+        .unwrap();
+    assert!(
+        first_resumed > before.env_steps,
+        "{first_resumed} <= {}",
+        before.env_steps
+    );
     // Episodes logged before the kill are still there; more were appended.
-    let episodes_after = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap().lines().count();
+    let episodes_after = std::fs::read_to_string(run_dir.join("episodes.csv"))
+        .unwrap()
+        .lines()
+        .count();
     assert!(episodes_after > episodes_before);
     server.stop().await.unwrap();
 }

@@ -17,7 +17,11 @@ static RNG: Mutex<()> = Mutex::new(());
 const UNROLLS: i64 = 64;
 
 fn bandit(eps: [f64; 2]) -> Learner {
-    let objective = |name: &str, epsilon| ObjectiveConfig { name: name.into(), epsilon, source: ObjectiveSource::Learned };
+    let objective = |name: &str, epsilon| ObjectiveConfig {
+        name: name.into(),
+        epsilon,
+        source: ObjectiveSource::Learned,
+    };
     let mut cfg = LearnerConfig {
         algorithm: Algorithm::MoVmpo,
         objectives: vec![objective("right", eps[0]), objective("left", eps[1])],
@@ -87,9 +91,18 @@ fn the_larger_epsilon_pulls_the_policy_to_its_objective() {
     // The lean is milder than MO-MPO's: the top-k selection alone still pulls toward
     // an objective with a small (but non-zero) epsilon, whose weights are then near
     // uniform over its selected half (measured: left -0.18, equal -0.01, right 0.14).
-    assert!(equal.abs() < 0.1, "equal epsilons give a compromise near 0, got {equal}");
-    assert!(right > equal + 0.07, "eps_right = 10 eps_left should lean right (to +1): {right} vs equal {equal}");
-    assert!(left < equal - 0.07, "eps_left = 10 eps_right should lean left (to -1): {left} vs equal {equal}");
+    assert!(
+        equal.abs() < 0.1,
+        "equal epsilons give a compromise near 0, got {equal}"
+    );
+    assert!(
+        right > equal + 0.07,
+        "eps_right = 10 eps_left should lean right (to +1): {right} vs equal {equal}"
+    );
+    assert!(
+        left < equal - 0.07,
+        "eps_left = 10 eps_right should lean left (to -1): {left} vs equal {equal}"
+    );
 }
 
 #[test]
@@ -98,5 +111,8 @@ fn a_zero_epsilon_objective_has_no_influence() {
     tch::set_num_threads(1);
     tch::manual_seed(1);
     let only_right = trained_mean([0.1, 0.0], 400);
-    assert!((only_right - 1.0).abs() < 0.25, "eps_left = 0: expected the optimum +1 of the right objective, got {only_right}");
+    assert!(
+        (only_right - 1.0).abs() < 0.25,
+        "eps_left = 0: expected the optimum +1 of the right objective, got {only_right}"
+    );
 }

@@ -33,8 +33,12 @@ impl Harness {
             extra_args: extra_args.iter().map(|s| s.to_string()).collect(),
             ..ServerOptions::default()
         };
-        let server = LocalServer::start(&options).await.expect("env_server starts");
-        let client = EnvClient::connect(server.address()).await.expect("client connects");
+        let server = LocalServer::start(&options)
+            .await
+            .expect("env_server starts");
+        let client = EnvClient::connect(server.address())
+            .await
+            .expect("client connects");
         Harness { server, client }
     }
 }

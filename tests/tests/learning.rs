@@ -14,10 +14,21 @@ use integration_tests::smoke_config;
 fn episode_mean(run_dir: &Path, name: &str, take_last: bool, n: usize) -> f64 {
     let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
     let mut lines = text.lines();
-    let col = lines.next().unwrap().split(',').position(|c| c == name).expect("column");
-    let values: Vec<f64> = lines.map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
+    let col = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == name)
+        .expect("column");
+    let values: Vec<f64> = lines
+        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
+        .collect();
     assert!(values.len() >= 2 * n, "only {} episodes", values.len());
-    let slice = if take_last { &values[values.len() - n..] } else { &values[..n] };
+    let slice = if take_last {
+        &values[values.len() - n..]
+    } else {
+        &values[..n]
+    };
     slice.iter().sum::<f64>() / n as f64
 }
 
@@ -26,7 +37,13 @@ async fn training_on_dst_improves_the_preferred_objective() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
     let cfg = smoke_config(runs.path());
-    let summary = train(cfg, &[server.address().to_string()], TrainOptions::default()).await.unwrap();
+    let summary = train(
+        cfg,
+        &[server.address().to_string()],
+        TrainOptions::default(),
+    )
+    .await
+    .unwrap();
     assert_eq!(summary.env_steps, 8000);
     // (8000 - 500 warm-up) * 0.25 learner steps.
     assert_eq!(summary.learner_steps, 1875);
@@ -35,10 +52,19 @@ async fn training_on_dst_improves_the_preferred_objective() {
     let first = episode_mean(&summary.run_dir, "return_treasure", false, 200);
     let last = episode_mean(&summary.run_dir, "return_treasure", true, 200);
     // +1.0 is about three standard errors of a 200-episode mean here.
-    assert!(last > first + 1.0, "treasure return did not improve: first {first:.2}, last {last:.2}");
-    for file in ["config.toml", "summary.json", "learner.jsonl", "curves.png", "curves.svg", "checkpoints/latest.json"] {
+    assert!(
+        last > first + 1.0,
+        "treasure return did not improve: first {first:.2}, last {last:.2}"
+    );
+    for file in [
+        "config.toml",
+        "summary.json",
+        "learner.jsonl",
+        "curves.png",
+        "curves.svg",
+        "checkpoints/latest.json",
+    ] {
         assert!(summary.run_dir.join(file).exists(), "{file} missing");
     }
     server.stop().await.unwrap();
 }
-

@@ -16,7 +16,13 @@ async fn the_same_config_and_seed_give_the_same_learning_curve() {
     for _ in 0..2 {
         let mut cfg = smoke_config(runs.path());
         cfg.run.total_env_steps = 2500;
-        let s = train(cfg, &[server.address().to_string()], TrainOptions::default()).await.unwrap();
+        let s = train(
+            cfg,
+            &[server.address().to_string()],
+            TrainOptions::default(),
+        )
+        .await
+        .unwrap();
         // episodes.csv without its last column, the wall-clock stamp.
         let episodes: Vec<String> = std::fs::read_to_string(s.run_dir.join("episodes.csv"))
             .unwrap()
@@ -38,7 +44,13 @@ async fn the_same_config_and_seed_give_the_same_learning_curve() {
         assert!(learner.len() >= 10);
         curves.push((episodes, learner));
     }
-    assert_eq!(curves[0].0, curves[1].0, "episodes.csv differs between identical runs");
-    assert_eq!(curves[0].1, curves[1].1, "learner statistics differ between identical runs");
+    assert_eq!(
+        curves[0].0, curves[1].0,
+        "episodes.csv differs between identical runs"
+    );
+    assert_eq!(
+        curves[0].1, curves[1].1,
+        "learner statistics differ between identical runs"
+    );
     server.stop().await.unwrap();
 }

@@ -14,7 +14,9 @@ async fn sweep_on_a_two_point_grid_writes_csv_hypervolume_and_plots() {
     let dir = tempfile::tempdir().unwrap();
     let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
     let runs_dir = dir.path().join("runs");
-    let base_text = std::fs::read_to_string(&smoke).unwrap().replace("[run]\n", &format!("[run]\nruns_dir = {runs_dir:?}\n"));
+    let base_text = std::fs::read_to_string(&smoke)
+        .unwrap()
+        .replace("[run]\n", &format!("[run]\nruns_dir = {runs_dir:?}\n"));
     std::fs::write(dir.path().join("base.toml"), base_text).unwrap();
     let sweep_path = dir.path().join("sweep.toml");
     std::fs::write(
@@ -36,17 +38,33 @@ y_objective = "treasure"
     )
     .unwrap();
     let (sweep_cfg, base) = SweepConfig::load(&sweep_path).unwrap();
-    let s = agent::sweep::sweep(&sweep_cfg, &base, &[server.address().to_string()], false).await.unwrap();
+    let s = agent::sweep::sweep(&sweep_cfg, &base, &[server.address().to_string()], false)
+        .await
+        .unwrap();
     assert_eq!(s.points.len(), 2);
     let returns: Vec<Vec<f64>> = s.points.iter().map(|p| p.eval_return.clone()).collect();
     assert_eq!(s.hypervolume, hypervolume(&returns, &[-25.0, 0.0]));
     let csv = std::fs::read_to_string(s.dir.join("points.csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "header + 2 points:\n{csv}");
-    assert!(csv.lines().next().unwrap().starts_with("setting_time,setting_treasure,seed,return_time,return_treasure"));
-    for file in ["front.csv", "summary.json", "front.png", "front.svg", "ratio.png", "ratio.svg"] {
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .starts_with("setting_time,setting_treasure,seed,return_time,return_treasure")
+    );
+    for file in [
+        "front.csv",
+        "summary.json",
+        "front.png",
+        "front.svg",
+        "ratio.png",
+        "ratio.svg",
+    ] {
         assert!(s.dir.join(file).exists(), "{file} missing");
     }
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(s.dir.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.dir.join("summary.json")).unwrap())
+            .unwrap();
     assert_eq!(summary["hypervolume"].as_f64().unwrap(), s.hypervolume);
     server.stop().await.unwrap();
 }
@@ -79,7 +97,12 @@ async fn a_server_restart_during_training_costs_a_reconnect_not_the_run() {
     .expect("training makes progress");
     first.kill().await.unwrap();
     tokio::time::sleep(std::time::Duration::from_millis(500)).await;
-    let second = LocalServer::start(&ServerOptions { port, ..ServerOptions::default() }).await.unwrap();
+    let second = LocalServer::start(&ServerOptions {
+        port,
+        ..ServerOptions::default()
+    })
+    .await
+    .unwrap();
     let summary = run.await.unwrap().expect("the run survives the restart");
     assert_eq!(summary.env_steps, 6000);
     second.stop().await.unwrap();
@@ -94,29 +117,54 @@ async fn time_to_solve_matches_episodes_csv_and_stop_on_solve_ends_the_run_there
     // the run counts as solved when its 10th episode ends, whatever was learned.
     cfg.run.solve_threshold = [("time".to_string(), -200.0)].into();
     cfg.run.stop_on_solve = true;
-    let s = train(cfg, &[server.address().to_string()], TrainOptions::default()).await.unwrap();
+    let s = train(
+        cfg,
+        &[server.address().to_string()],
+        TrainOptions::default(),
+    )
+    .await
+    .unwrap();
     let solved = s.solved.clone().expect("solved at the 10th episode");
     let text = std::fs::read_to_string(s.run_dir.join("episodes.csv")).unwrap();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     assert_eq!(header.last(), Some(&"wall_seconds"));
     let col = |name: &str| header.iter().position(|c| *c == name).unwrap();
-    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|v| v.parse().unwrap_or(f64::NAN)).collect()).collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse().unwrap_or(f64::NAN))
+                .collect()
+        })
+        .collect();
     assert!(rows.len() >= 10, "{} episodes", rows.len());
     let tenth = &rows[9];
     assert_eq!(solved.episodes, 10);
     assert_eq!(solved.env_steps as f64, tenth[col("env_steps")]);
     for (k, name) in ["return_time", "return_treasure"].iter().enumerate() {
         let mean = rows[..10].iter().map(|r| r[col(name)]).sum::<f64>() / 10.0;
-        assert!((solved.running_mean[k] - mean).abs() < 1e-9, "{name}: {} vs {mean}", solved.running_mean[k]);
+        assert!(
+            (solved.running_mean[k] - mean).abs() < 1e-9,
+            "{name}: {} vs {mean}",
+            solved.running_mean[k]
+        );
     }
     // Both stamps are seconds since train started, taken moments apart.
     let stamped = tenth[col("wall_seconds")];
-    assert!(solved.wall_seconds >= stamped - 1e-3 && solved.wall_seconds < stamped + 1.0, "{} vs {stamped}", solved.wall_seconds);
+    assert!(
+        solved.wall_seconds >= stamped - 1e-3 && solved.wall_seconds < stamped + 1.0,
+        "{} vs {stamped}",
+        solved.wall_seconds
+    );
     // stop_on_solve: no env step after the batch that solved it (budget: 8000).
     assert_eq!(s.env_steps, solved.env_steps);
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(s.run_dir.join("summary.json")).unwrap()).unwrap();
-    assert_eq!(summary["solved"]["env_steps"].as_u64(), Some(solved.env_steps));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.run_dir.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        summary["solved"]["env_steps"].as_u64(),
+        Some(solved.env_steps)
+    );
     assert_eq!(summary["solve_threshold"]["time"].as_f64(), Some(-200.0));
     server.stop().await.unwrap();
 }

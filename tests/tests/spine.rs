@@ -32,11 +32,19 @@ const DOWN: i64 = 2;
 
 fn dst_path(col: usize) -> Vec<i64> {
     let (row, _, _) = TREASURES[col];
-    std::iter::repeat_n(RIGHT, col).chain(std::iter::repeat_n(DOWN, row)).collect()
+    std::iter::repeat_n(RIGHT, col)
+        .chain(std::iter::repeat_n(DOWN, row))
+        .collect()
 }
 
 async fn run_dst_paths(client: &EnvClient, num_envs: usize, stream: bool) -> Vec<Vec<f32>> {
-    let mut env = client.make(&MakeOptions { seed: Some(7), ..MakeOptions::new("dst", num_envs) }).await.unwrap();
+    let mut env = client
+        .make(&MakeOptions {
+            seed: Some(7),
+            ..MakeOptions::new("dst", num_envs)
+        })
+        .await
+        .unwrap();
     if stream {
         env.use_stream();
     }
@@ -48,8 +56,14 @@ async fn run_dst_paths(client: &EnvClient, num_envs: usize, stream: bool) -> Vec
     let mut rewards = Vec::new();
     let mut ended = vec![false; num_envs];
     for t in 0..longest {
-        let actions: Vec<i64> = paths.iter().map(|p| p.get(t).copied().unwrap_or(UP)).collect();
-        let step = env.step(&HostTensor::from_i64(vec![num_envs], &actions)).await.unwrap();
+        let actions: Vec<i64> = paths
+            .iter()
+            .map(|p| p.get(t).copied().unwrap_or(UP))
+            .collect();
+        let step = env
+            .step(&HostTensor::from_i64(vec![num_envs], &actions))
+            .await
+            .unwrap();
         for (i, path) in paths.iter().enumerate() {
             if ended[i] {
                 continue;
@@ -58,12 +72,22 @@ async fn run_dst_paths(client: &EnvClient, num_envs: usize, stream: bool) -> Vec
             assert_eq!(r[0], -1.0, "time reward of instance {i} at step {t}");
             let arrives = t + 1 == path.len();
             let expected_treasure = if arrives { TREASURES[i].2 } else { 0.0 };
-            assert!((r[1] - expected_treasure).abs() < 1e-6, "treasure of instance {i} at step {t}: {r:?}");
-            assert_eq!(step.terminated[i], arrives, "terminated of instance {i} at step {t}");
+            assert!(
+                (r[1] - expected_treasure).abs() < 1e-6,
+                "treasure of instance {i} at step {t}: {r:?}"
+            );
+            assert_eq!(
+                step.terminated[i], arrives,
+                "terminated of instance {i} at step {t}"
+            );
             assert!(!step.truncated[i]);
             if arrives {
                 ended[i] = true;
-                let episode = step.episodes.iter().find(|e| e.env_index == i).expect("episode summary");
+                let episode = step
+                    .episodes
+                    .iter()
+                    .find(|e| e.env_index == i)
+                    .expect("episode summary");
                 assert_eq!(episode.length as usize, path.len());
                 assert_eq!(episode.episode_return[0], -(path.len() as f64));
                 assert!((episode.episode_return[1] - f64::from(TREASURES[i].2)).abs() < 1e-5);
@@ -91,7 +115,10 @@ async fn dst_over_the_wire_matches_the_paper_definition_for_b1_and_b8() {
     run_dst_paths(&h.client, 1, false).await;
     let unary = run_dst_paths(&h.client, 8, false).await;
     let streamed = run_dst_paths(&h.client, 8, true).await;
-    assert_eq!(unary, streamed, "StepStream and unary Step give the same rewards");
+    assert_eq!(
+        unary, streamed,
+        "StepStream and unary Step give the same rewards"
+    );
     h.server.stop().await.unwrap();
 }
 
@@ -99,14 +126,22 @@ async fn dst_over_the_wire_matches_the_paper_definition_for_b1_and_b8() {
 async fn humanoid_run_rewards_follow_their_definitions_for_b1_and_b8() {
     let h = Harness::start(&[]).await;
     for num_envs in [1, 8] {
-        let options = MakeOptions { seed: Some(3), ..MakeOptions::new("humanoid-run", num_envs) };
+        let options = MakeOptions {
+            seed: Some(3),
+            ..MakeOptions::new("humanoid-run", num_envs)
+        };
         let mut env = h.client.make(&options).await.unwrap();
         let spec = env.spec().clone();
         assert_eq!(spec.objective_names(), ["task", "action_norm"]);
         assert_eq!(spec.observation_space.flat_dim(), 67);
-        let Space::Box(action_space) = &spec.action_space else { panic!("humanoid-run has Box actions") };
+        let Space::Box(action_space) = &spec.action_space else {
+            panic!("humanoid-run has Box actions")
+        };
         assert_eq!(action_space.shape, [21]);
-        assert!(action_space.low.iter().all(|&l| l == -1.0) && action_space.high.iter().all(|&h| h == 1.0));
+        assert!(
+            action_space.low.iter().all(|&l| l == -1.0)
+                && action_space.high.iter().all(|&h| h == 1.0)
+        );
         let reset = env.reset(&[], &[]).await.unwrap();
         assert_eq!(reset.observation.to_flat_f32().len(), num_envs * 67);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
@@ -117,12 +152,26 @@ async fn humanoid_run_rewards_follow_their_definitions_for_b1_and_b8() {
             let a = action.to_f32_vec();
             let step = env.step(&action).await.unwrap();
             for i in 0..num_envs {
-                let norm = a[i * 21..(i + 1) * 21].iter().map(|x| x * x).sum::<f32>().sqrt();
+                let norm = a[i * 21..(i + 1) * 21]
+                    .iter()
+                    .map(|x| x * x)
+                    .sum::<f32>()
+                    .sqrt();
                 let (task, action_norm) = (step.reward[i * 2], step.reward[i * 2 + 1]);
-                assert!((action_norm + norm).abs() < 1e-5, "action_norm {action_norm} vs -||a|| {norm}");
-                assert!((0.0..=1.0).contains(&task), "task reward {task} outside [0, 1]");
+                assert!(
+                    (action_norm + norm).abs() < 1e-5,
+                    "action_norm {action_norm} vs -||a|| {norm}"
+                );
+                assert!(
+                    (0.0..=1.0).contains(&task),
+                    "task reward {task} outside [0, 1]"
+                );
                 assert!(!step.terminated[i], "humanoid run never terminates");
-                assert_eq!(step.truncated[i], t == 999, "truncation only at the 1000-step limit");
+                assert_eq!(
+                    step.truncated[i],
+                    t == 999,
+                    "truncation only at the 1000-step limit"
+                );
             }
             if t == 999 {
                 let e = &step.episodes[0];
@@ -140,7 +189,11 @@ async fn humanoid_run_in_server_worker_processes_steps_exactly_as_without() {
     let h = Harness::start(&["--max-workers", "3"]).await;
     let mut runs = Vec::new();
     for num_workers in [0, 1, 3] {
-        let options = MakeOptions { seed: Some(5), num_workers, ..MakeOptions::new("humanoid-run", 4) };
+        let options = MakeOptions {
+            seed: Some(5),
+            num_workers,
+            ..MakeOptions::new("humanoid-run", 4)
+        };
         let mut env = h.client.make(&options).await.unwrap();
         env.use_stream();
         let mut seen = env.reset(&[], &[]).await.unwrap().observation.to_flat_f32();
@@ -163,26 +216,72 @@ async fn humanoid_run_in_server_worker_processes_steps_exactly_as_without() {
 #[tokio::test]
 async fn server_errors_arrive_typed_with_the_servers_message() {
     let h = Harness::start(&["--max-sessions", "2"]).await;
-    let err = h.client.make(&MakeOptions::new("no-such-env", 1)).await.unwrap_err();
+    let err = h
+        .client
+        .make(&MakeOptions::new("no-such-env", 1))
+        .await
+        .unwrap_err();
     assert_eq!(err.status_kind(), Some(StatusKind::NotFound), "{err}");
     assert!(err.to_string().contains("no-such-env"), "{err}");
 
     let mut env = h.client.make(&MakeOptions::new("dst", 2)).await.unwrap();
-    let err = env.step(&HostTensor::from_i64(vec![2], &[0, 1])).await.unwrap_err();
-    assert_eq!(err.status_kind(), Some(StatusKind::FailedPrecondition), "{err}");
+    let err = env
+        .step(&HostTensor::from_i64(vec![2], &[0, 1]))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::FailedPrecondition),
+        "{err}"
+    );
     env.reset(&[], &[]).await.unwrap();
-    let err = env.step(&HostTensor::from_i64(vec![3], &[0, 1, 2])).await.unwrap_err();
-    assert_eq!(err.status_kind(), Some(StatusKind::InvalidArgument), "{err}");
-    assert!(err.to_string().contains("[2]") && err.to_string().contains("[3]"), "names expected and got: {err}");
-    let err = env.step(&HostTensor::from_f32(vec![2], &[0.0, 1.0])).await.unwrap_err();
-    assert_eq!(err.status_kind(), Some(StatusKind::InvalidArgument), "{err}");
-    assert!(err.to_string().contains("int64") && err.to_string().contains("float32"), "{err}");
-    let err = env.step(&HostTensor::from_i64(vec![2], &[0, 4])).await.unwrap_err();
-    assert_eq!(err.status_kind(), Some(StatusKind::InvalidArgument), "{err}");
+    let err = env
+        .step(&HostTensor::from_i64(vec![3], &[0, 1, 2]))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::InvalidArgument),
+        "{err}"
+    );
+    assert!(
+        err.to_string().contains("[2]") && err.to_string().contains("[3]"),
+        "names expected and got: {err}"
+    );
+    let err = env
+        .step(&HostTensor::from_f32(vec![2], &[0.0, 1.0]))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::InvalidArgument),
+        "{err}"
+    );
+    assert!(
+        err.to_string().contains("int64") && err.to_string().contains("float32"),
+        "{err}"
+    );
+    let err = env
+        .step(&HostTensor::from_i64(vec![2], &[0, 4]))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::InvalidArgument),
+        "{err}"
+    );
 
     let _second = h.client.make(&MakeOptions::new("dst", 1)).await.unwrap();
-    let err = h.client.make(&MakeOptions::new("dst", 1)).await.unwrap_err();
-    assert_eq!(err.status_kind(), Some(StatusKind::ResourceExhausted), "{err}");
+    let err = h
+        .client
+        .make(&MakeOptions::new("dst", 1))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::ResourceExhausted),
+        "{err}"
+    );
 
     env.close().await.unwrap();
     h.server.stop().await.unwrap();
@@ -191,17 +290,32 @@ async fn server_errors_arrive_typed_with_the_servers_message() {
 #[tokio::test]
 async fn disabled_autoreset_requires_an_explicit_reset() {
     let h = Harness::start(&[]).await;
-    let options = MakeOptions { autoreset_mode: AutoresetMode::Disabled, ..MakeOptions::new("dst", 2) };
+    let options = MakeOptions {
+        autoreset_mode: AutoresetMode::Disabled,
+        ..MakeOptions::new("dst", 2)
+    };
     let mut env = h.client.make(&options).await.unwrap();
     env.reset(&[], &[]).await.unwrap();
     // Instance 0 reaches the 0.7 treasure in one step; instance 1 does not move.
-    let step = env.step(&HostTensor::from_i64(vec![2], &[DOWN, UP])).await.unwrap();
+    let step = env
+        .step(&HostTensor::from_i64(vec![2], &[DOWN, UP]))
+        .await
+        .unwrap();
     assert_eq!(step.terminated, [true, false]);
-    let err = env.step(&HostTensor::from_i64(vec![2], &[UP, UP])).await.unwrap_err();
-    assert_eq!(err.status_kind(), Some(StatusKind::FailedPrecondition), "{err}");
+    let err = env
+        .step(&HostTensor::from_i64(vec![2], &[UP, UP]))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::FailedPrecondition),
+        "{err}"
+    );
     let reset = env.reset(&[0], &[]).await.unwrap();
     assert_eq!(reset.observation.to_flat_f32(), [0.0, 0.0]);
-    env.step(&HostTensor::from_i64(vec![2], &[UP, UP])).await.unwrap();
+    env.step(&HostTensor::from_i64(vec![2], &[UP, UP]))
+        .await
+        .unwrap();
     env.close().await.unwrap();
     h.server.stop().await.unwrap();
 }
@@ -211,15 +325,30 @@ async fn client_rides_out_a_server_restart_on_the_same_port() {
     let first = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let port = first.port();
     let client = EnvClient::connect(first.address()).await.unwrap();
-    assert!(client.list_envs().await.unwrap().iter().any(|e| e.env_id == "dst"));
+    assert!(
+        client
+            .list_envs()
+            .await
+            .unwrap()
+            .iter()
+            .any(|e| e.env_id == "dst")
+    );
     first.kill().await.unwrap();
     // Restart on the same port a moment later; the next call sees UNAVAILABLE
     // until then and is retried with backoff.
     let restarted = tokio::spawn(async move {
         tokio::time::sleep(std::time::Duration::from_millis(500)).await;
-        LocalServer::start(&ServerOptions { port, ..ServerOptions::default() }).await.unwrap()
+        LocalServer::start(&ServerOptions {
+            port,
+            ..ServerOptions::default()
+        })
+        .await
+        .unwrap()
     });
-    let envs = client.list_envs().await.expect("retried until the server was back");
+    let envs = client
+        .list_envs()
+        .await
+        .expect("retried until the server was back");
     assert!(envs.iter().any(|e| e.env_id == "humanoid-run"));
     restarted.await.unwrap().stop().await.unwrap();
 }

@@ -25,8 +25,16 @@ pub struct StepSize {
 /// `task` learned, `action_norm` in closed form (humanoid run and pendulum).
 pub fn task_and_action_norm(action_norm_epsilon: f64) -> Vec<ObjectiveConfig> {
     vec![
-        ObjectiveConfig { name: "task".into(), epsilon: 0.1, source: ObjectiveSource::Learned },
-        ObjectiveConfig { name: "action_norm".into(), epsilon: action_norm_epsilon, source: ObjectiveSource::ActionNorm },
+        ObjectiveConfig {
+            name: "task".into(),
+            epsilon: 0.1,
+            source: ObjectiveSource::Learned,
+        },
+        ObjectiveConfig {
+            name: "action_norm".into(),
+            epsilon: action_norm_epsilon,
+            source: ObjectiveSource::ActionNorm,
+        },
     ]
 }
 
@@ -36,20 +44,33 @@ pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
     args.iter()
         .position(|a| a == name)
         .and_then(|i| args.get(i + 1))
-        .map_or(default, |v| v.parse().unwrap_or_else(|_| panic!("{name}: cannot parse {v}")))
+        .map_or(default, |v| {
+            v.parse()
+                .unwrap_or_else(|_| panic!("{name}: cannot parse {v}"))
+        })
 }
 
 /// The median of `v`.
 pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
 
 /// Times `steps` learner steps on `batch` after `warmup` untimed ones, prints each
 /// phase's share of the time (`names` in `PhaseTimings` order) and returns the step
 /// times in ms.
-pub fn time_steps(learner: &mut Learner, batch: &SnippetBatch, warmup: usize, steps: usize, names: [&str; 4]) -> Vec<f64> {
+pub fn time_steps(
+    learner: &mut Learner,
+    batch: &SnippetBatch,
+    warmup: usize,
+    steps: usize,
+    names: [&str; 4],
+) -> Vec<f64> {
     for _ in 0..warmup {
         learner.step(batch).expect("step");
     }
@@ -59,7 +80,12 @@ pub fn time_steps(learner: &mut Learner, batch: &SnippetBatch, warmup: usize, st
         let start = std::time::Instant::now();
         let p = learner.step(batch).expect("step").timings;
         totals.push(start.elapsed().as_secs_f64() * 1e3);
-        for (acc, v) in phases.iter_mut().zip([p.policy_evaluation_ms, p.e_step_ms, p.m_step_ms, p.target_update_ms]) {
+        for (acc, v) in phases.iter_mut().zip([
+            p.policy_evaluation_ms,
+            p.e_step_ms,
+            p.m_step_ms,
+            p.target_update_ms,
+        ]) {
             *acc += v;
         }
     }
@@ -76,10 +102,16 @@ pub fn time_steps(learner: &mut Learner, batch: &SnippetBatch, warmup: usize, st
 /// Prints `learner_step_ms_median=<ms>` last and returns that median.
 pub fn run(size: StepSize) -> f64 {
     agent::device::tune_allocator();
-    let threads = agent::device::configure_threads(Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0));
+    let threads =
+        agent::device::configure_threads(Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0));
     let device = agent::device::learner_device();
     let steps: usize = arg("--steps", 20);
-    let StepSize { name, obs_dim, act_dim, mut cfg } = size;
+    let StepSize {
+        name,
+        obs_dim,
+        act_dim,
+        mut cfg,
+    } = size;
     cfg.mpo.batch_size = arg("--batch", cfg.mpo.batch_size);
     cfg.mpo.num_samples = arg("--samples", cfg.mpo.num_samples);
     let (t, b) = (cfg.mpo.retrace_length as i64, cfg.mpo.batch_size as i64);

@@ -128,10 +128,15 @@ pub fn top_k_mask(advantages: &Tensor, eligible: &Tensor, fraction: f64) -> Tens
     let n_eligible = eligible.sum(Kind::Float).double_value(&[]);
     let k = ((fraction * n_eligible).floor() as i64).max(1);
     let is_eligible = eligible.gt(0.5).unsqueeze(-1);
-    let masked = advantages.detach().masked_fill(&is_eligible.logical_not(), f64::NEG_INFINITY);
+    let masked = advantages
+        .detach()
+        .masked_fill(&is_eligible.logical_not(), f64::NEG_INFINITY);
     let (top, _) = masked.topk(k, 0, true, true);
     let threshold = top.narrow(0, k - 1, 1);
-    masked.ge_tensor(&threshold).logical_and(&is_eligible).to_kind(Kind::Float)
+    masked
+        .ge_tensor(&threshold)
+        .logical_and(&is_eligible)
+        .to_kind(Kind::Float)
 }
 
 /// MO-V-MPO step 1 (see module docs).
@@ -161,8 +166,17 @@ pub fn advantage_estep(
     let n_eligible = eligible.sum(Kind::Float);
     let uniform = (&eligible / &n_eligible).unsqueeze(-1);
     let weights: Tensor = &softmax * &active + uniform * (1.0 - &active);
-    let kl = (&weights * (&weights * &n_eligible).clamp_min(1e-30).log()).sum_dim_intlist(0, false, Kind::Float);
-    AdvantageEStepOutput { weights, selected, temperature_loss, kl }
+    let kl = (&weights * (&weights * &n_eligible).clamp_min(1e-30).log()).sum_dim_intlist(
+        0,
+        false,
+        Kind::Float,
+    );
+    AdvantageEStepOutput {
+        weights,
+        selected,
+        temperature_loss,
+        kl,
+    }
 }
 
 #[cfg(test)]
@@ -174,10 +188,12 @@ mod tests {
     fn top_k_keeps_ties_and_skips_ineligible_pairs() {
         // Column 0: eligible values 3, 1, 1, 0 (the 9 is ineligible): k = 2, threshold 1,
         // so both tied 1s are kept. Column 1: the top 2 eligible are 5 and 4.
-        let a = Tensor::from_slice(&[9.0f32, 0.0, 3.0, 5.0, 1.0, 4.0, 1.0, -1.0, 0.0, 2.0]).reshape([5, 2]);
+        let a = Tensor::from_slice(&[9.0f32, 0.0, 3.0, 5.0, 1.0, 4.0, 1.0, -1.0, 0.0, 2.0])
+            .reshape([5, 2]);
         let eligible = Tensor::from_slice(&[0.0f32, 1.0, 1.0, 1.0, 1.0]);
         let mask = top_k_mask(&a, &eligible, 0.5);
-        let want = Tensor::from_slice(&[0.0f32, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]).reshape([5, 2]);
+        let want = Tensor::from_slice(&[0.0f32, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+            .reshape([5, 2]);
         assert!(mask.equal(&want), "{mask}");
     }
 

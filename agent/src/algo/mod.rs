@@ -20,5 +20,5 @@ pub mod state;
 pub mod stats;
 
 pub use batch::{BatchError, SnippetBatch};
-pub use state::{Learner, LearnerError, LearnerStats, PhaseTimings};
 pub use objectives::{BoundObjectives, LearnerDims, QSource, bind};
+pub use state::{Learner, LearnerError, LearnerStats, PhaseTimings};

@@ -24,7 +24,9 @@ use super::batch::SnippetBatch;
 use super::estep::{EStepOutput, exact_estep, sampled_estep};
 use super::objectives::QSource;
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
-use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec};
+use super::state::{
+    Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec,
+};
 use crate::nets::{GaussianParams, PolicyOutput};
 use std::time::Instant;
 use tch::{Kind, Tensor};
@@ -58,7 +60,12 @@ impl Learner {
         let obs_taken = obs_all.narrow(0, 0, t_len * b);
         let act_taken = batch.actions.flatten(0, 1);
         let heads = self.bound.critic_names.len() as i64;
-        let Critics::Q { online: critic, target: target_critic, .. } = &self.critics else {
+        let Critics::Q {
+            online: critic,
+            target: target_critic,
+            ..
+        } = &self.critics
+        else {
             unreachable!("MPO learners are built with Q critics")
         };
 
@@ -75,20 +82,27 @@ impl Learner {
                 PolicyOutput::Categorical(logits) => {
                     let q = target_critic.forward_all_actions(&obs_all);
                     let log_prior = logits.log_softmax(-1, Kind::Float).transpose(0, 1);
-                    let v = (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(0, false, Kind::Float);
+                    let v =
+                        (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(0, false, Kind::Float);
                     let a = logits.size()[1];
-                    let all = Tensor::arange(a, (Kind::Int64, self.device)).unsqueeze(1).expand([a, n], false);
+                    let all = Tensor::arange(a, (Kind::Int64, self.device))
+                        .unsqueeze(1)
+                        .expand([a, n], false);
                     (all, q, v, Some(log_prior))
                 }
             };
             let v_next = v_all.reshape([t_len + 1, b, heads]).narrow(0, 1, t_len);
-            let q_taken = target_critic.forward(&obs_taken, &act_taken).reshape([t_len, b, heads]);
+            let q_taken = target_critic
+                .forward(&obs_taken, &act_taken)
+                .reshape([t_len, b, heads]);
             let target_log_probs = match &target_out {
                 PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
                     mean: g.mean.narrow(0, 0, t_len * b),
                     std: g.std.narrow(0, 0, t_len * b),
                 }),
-                PolicyOutput::Categorical(l) => PolicyOutput::Categorical(l.narrow(0, 0, t_len * b)),
+                PolicyOutput::Categorical(l) => {
+                    PolicyOutput::Categorical(l.narrow(0, 0, t_len * b))
+                }
             }
             .log_prob(&act_taken)
             .reshape([t_len, b]);
@@ -102,11 +116,20 @@ impl Learner {
                 importance: &importance,
                 gamma: self.cfg.mpo.discount,
             });
-            (target_out, samples, critic_q, log_prior, targets.reshape([t_len * b, heads]))
+            (
+                target_out,
+                samples,
+                critic_q,
+                log_prior,
+                targets.reshape([t_len * b, heads]),
+            )
         });
         let (target_out, samples, critic_q, log_prior, targets) = eval;
         let q_online = critic.forward(&obs_taken, &act_taken);
-        let per_head = (q_online - &targets).square().mean_dim(0, false, Kind::Float) * 0.5;
+        let per_head = (q_online - &targets)
+            .square()
+            .mean_dim(0, false, Kind::Float)
+            * 0.5;
         self.update_critics(&per_head.sum(Kind::Float));
         let policy_evaluation_ms = ms_since(start, self.device);
 
@@ -124,7 +147,13 @@ impl Learner {
         // 3. M-step (eqs. 16-20) and dual updates.
         let start = Instant::now();
         let online_out = self.policy.forward(&obs_all);
-        let policy_kl = self.fit_policy(&online_out, &target_out, &samples, &weights, &estep.temperature_loss);
+        let policy_kl = self.fit_policy(
+            &online_out,
+            &target_out,
+            &samples,
+            &weights,
+            &estep.temperature_loss,
+        );
         let m_step_ms = ms_since(start, self.device);
 
         // 4. Target networks.
@@ -133,7 +162,12 @@ impl Learner {
             estep_kl: estep.kl,
             value_mean: q.mean_dim([0i64, 1].as_slice(), false, Kind::Float),
             policy_kl,
-            timings: PhaseTimings { policy_evaluation_ms, e_step_ms, m_step_ms, target_update_ms: 0.0 },
+            timings: PhaseTimings {
+                policy_evaluation_ms,
+                e_step_ms,
+                m_step_ms,
+                target_update_ms: 0.0,
+            },
         })
     }
 
@@ -141,7 +175,11 @@ impl Learner {
     /// policy's samples, for bandits and tests where Q is known in closed form.
     /// `q_fn` maps sampled actions `[M, N, D]` to Q `[M, N, K]`.
     /// Returns (temperatures, policy KL (KL_mu, KL_Sigma) before the update).
-    pub fn improve_policy_with(&mut self, obs: &Tensor, q_fn: impl Fn(&Tensor) -> Tensor) -> (Vec<f32>, Vec<f32>) {
+    pub fn improve_policy_with(
+        &mut self,
+        obs: &Tensor,
+        q_fn: impl Fn(&Tensor) -> Tensor,
+    ) -> (Vec<f32>, Vec<f32>) {
         let obs = obs.to_device(self.device);
         let target_out = tch::no_grad(|| self.target_policy.forward(&obs));
         let PolicyOutput::Gaussian(target) = &target_out else {
@@ -152,7 +190,13 @@ impl Learner {
         let estep = sampled_estep(&q, &self.duals.temperature(), &self.epsilon);
         let online_out = self.policy.forward(&obs);
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
-        let policy_kl = self.fit_policy(&online_out, &target_out, &samples, &weights, &estep.temperature_loss);
+        let policy_kl = self.fit_policy(
+            &online_out,
+            &target_out,
+            &samples,
+            &weights,
+            &estep.temperature_loss,
+        );
         self.advance_targets().expect("same layout");
         (self.duals.values().0, to_vec(&policy_kl))
     }

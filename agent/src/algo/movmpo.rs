@@ -25,7 +25,9 @@
 use super::batch::SnippetBatch;
 use super::estep::advantage_estep;
 use super::objectives::QSource;
-use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since};
+use super::state::{
+    Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since,
+};
 use crate::nets::PolicyOutput;
 use std::time::Instant;
 use tch::{Kind, Tensor};
@@ -72,7 +74,9 @@ impl Learner {
         let (t_len, b) = (batch.len(), batch.batch_size());
         let n = t_len * b;
         let heads = self.bound.critic_names.len() as i64;
-        let obs_all = batch.observations.reshape([(t_len + 1) * b, self.dims.obs_dim]);
+        let obs_all = batch
+            .observations
+            .reshape([(t_len + 1) * b, self.dims.obs_dim]);
         let obs_taken = obs_all.narrow(0, 0, n);
         let Critics::V { online: critic } = &self.critics else {
             unreachable!("V-MPO learners are built with state-value critics")
@@ -98,8 +102,9 @@ impl Learner {
             .sum_dim_intlist(0, false, Kind::Float)
             / &real_steps
             * 0.5;
-        let value_mean = (values.detach().narrow(0, 0, t_len).reshape([n, heads]) * valid.unsqueeze(-1))
-            .sum_dim_intlist(0, false, Kind::Float)
+        let value_mean = (values.detach().narrow(0, 0, t_len).reshape([n, heads])
+            * valid.unsqueeze(-1))
+        .sum_dim_intlist(0, false, Kind::Float)
             / &real_steps;
         self.update_critics(&per_head.sum(Kind::Float));
         let policy_evaluation_ms = ms_since(start, self.device);
@@ -112,7 +117,9 @@ impl Learner {
             .iter()
             .map(|o| match o.source {
                 QSource::Critic { head } => advantages.select(-1, head as i64),
-                QSource::ActionNorm => unreachable!("bind_config rejects closed-form objectives for V-MPO"),
+                QSource::ActionNorm => {
+                    unreachable!("bind_config rejects closed-form objectives for V-MPO")
+                }
             })
             .collect();
         let objective_advantages = Tensor::stack(&columns, -1);
@@ -130,17 +137,32 @@ impl Learner {
         // 3. Step 2 (D.2.2, eq. 25) and dual updates.
         let start = Instant::now();
         let noise = self.policy.latent_noise(n);
-        let target_out = tch::no_grad(|| self.target_policy.forward_with_noise(&obs_taken, noise.as_ref()));
+        let target_out = tch::no_grad(|| {
+            self.target_policy
+                .forward_with_noise(&obs_taken, noise.as_ref())
+        });
         let online_out = self.policy.forward_with_noise(&obs_taken, noise.as_ref());
         let (actions, weights) = match &online_out {
-            PolicyOutput::Gaussian(_) => (batch.actions.flatten(0, 1).unsqueeze(0), weights.unsqueeze(0)),
+            PolicyOutput::Gaussian(_) => (
+                batch.actions.flatten(0, 1).unsqueeze(0),
+                weights.unsqueeze(0),
+            ),
             PolicyOutput::Categorical(logits) => {
                 let taken = batch.actions.flatten(0, 1);
-                let one_hot = taken.one_hot(logits.size()[1]).to_kind(Kind::Float).transpose(0, 1);
+                let one_hot = taken
+                    .one_hot(logits.size()[1])
+                    .to_kind(Kind::Float)
+                    .transpose(0, 1);
                 (taken, one_hot * weights.unsqueeze(0))
             }
         };
-        let policy_kl = self.fit_policy(&online_out, &target_out, &actions, &weights, &estep.temperature_loss);
+        let policy_kl = self.fit_policy(
+            &online_out,
+            &target_out,
+            &actions,
+            &weights,
+            &estep.temperature_loss,
+        );
         let m_step_ms = ms_since(start, self.device);
 
         // 4. pi_old.
@@ -149,7 +171,12 @@ impl Learner {
             estep_kl: estep.kl,
             value_mean,
             policy_kl,
-            timings: PhaseTimings { policy_evaluation_ms, e_step_ms, m_step_ms, target_update_ms: 0.0 },
+            timings: PhaseTimings {
+                policy_evaluation_ms,
+                e_step_ms,
+                m_step_ms,
+                target_update_ms: 0.0,
+            },
         })
     }
 }
@@ -167,7 +194,8 @@ mod tests {
         let rewards = t(&[1.0, 5.0, 1.0, 2.0, 0.0, 0.0, 3.0, 0.0, 0.0]).reshape([3, 3, 1]);
         let discounts = t(&[1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0]).reshape([3, 3]);
         let valid = t(&[1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0]).reshape([3, 3]);
-        let values = t(&[0.0, 0.0, 0.0, 0.0, 9.0, 4.0, 0.0, 9.0, 9.0, 8.0, 9.0, 9.0]).reshape([4, 3, 1]);
+        let values =
+            t(&[0.0, 0.0, 0.0, 0.0, 9.0, 4.0, 0.0, 9.0, 9.0, 8.0, 9.0, 9.0]).reshape([4, 3, 1]);
         let g = unroll_targets(&UnrollTargetInputs {
             rewards: &rewards,
             discounts: &discounts,

@@ -10,8 +10,8 @@
 use crate::config::{
     Architecture, ConfigError, LearnerConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
 };
-pub use crate::nets::LearnerDims;
 use crate::nets::ActionKind;
+pub use crate::nets::LearnerDims;
 use crate::spec::ObjectiveSpec;
 use serde::{Deserialize, Serialize};
 
@@ -166,16 +166,26 @@ pub fn bind_config(
         None => bind_names(&cfg.objectives, &dims.reward_names)?,
         Some((epsilon, weights)) => bind_scalarized(epsilon, weights, &dims.reward_names)?,
     };
-    if let Some(o) = bound.objectives.iter().find(|o| o.source == QSource::ActionNorm) {
+    if let Some(o) = bound
+        .objectives
+        .iter()
+        .find(|o| o.source == QSource::ActionNorm)
+    {
         let reason = if cfg.algorithm.on_policy() {
-            Some("V-MPO cannot use (its step 1 needs one advantage per taken action; make it learned)")
+            Some(
+                "V-MPO cannot use (its step 1 needs one advantage per taken action; make it learned)",
+            )
         } else if let ActionKind::Discrete { .. } = dims.action {
             Some("needs continuous actions")
         } else {
             None
         };
         if let Some(reason) = reason {
-            return Err(ConfigError::Unsupported { name: o.name.clone(), kind: ObjectiveSource::ActionNorm, reason: reason.into() });
+            return Err(ConfigError::Unsupported {
+                name: o.name.clone(),
+                kind: ObjectiveSource::ActionNorm,
+                reason: reason.into(),
+            });
         }
     }
     if bound.critic_names.is_empty() {
@@ -185,7 +195,10 @@ pub fn bind_config(
             got: format!("{:?}", cfg.objectives),
         });
     }
-    if let Architecture::Mocap { reference_match, .. } = &cfg.network.architecture {
+    if let Architecture::Mocap {
+        reference_match, ..
+    } = &cfg.network.architecture
+    {
         let split = dims.split_observation(reference_match);
         if split.matching.is_empty() || split.rest.is_empty() {
             let leaves: Vec<&str> = dims.obs_leaves.iter().map(|l| l.name.as_str()).collect();
@@ -259,20 +272,38 @@ mod tests {
             obs_dim: 4,
             action: ActionKind::Continuous { dim: 2 },
             reward_names: env(),
-            obs_leaves: vec![ObsLeaf { name: String::new(), dim: 4 }],
+            obs_leaves: vec![ObsLeaf {
+                name: String::new(),
+                dim: 4,
+            }],
         };
         let msg = bind_config(&cfg, &dims).unwrap_err().to_string();
-        assert!(msg.contains(r#"objective "action_norm""#) && msg.contains("V-MPO"), "{msg}");
+        assert!(
+            msg.contains(r#"objective "action_norm""#) && msg.contains("V-MPO"),
+            "{msg}"
+        );
         cfg.objectives[1].source = ObjectiveSource::Learned;
         bind_config(&cfg, &dims).unwrap();
-        cfg.network.architecture =
-            Architecture::Mocap { encoder_layers: vec![8], latent_dim: 2, reference_match: "reference".into() };
+        cfg.network.architecture = Architecture::Mocap {
+            encoder_layers: vec![8],
+            latent_dim: 2,
+            reference_match: "reference".into(),
+        };
         let msg = bind_config(&cfg, &dims).unwrap_err().to_string();
-        assert!(msg.starts_with("network.architecture.reference_match must be"), "{msg}");
+        assert!(
+            msg.starts_with("network.architecture.reference_match must be"),
+            "{msg}"
+        );
         assert!(msg.ends_with(r#"got [""]"#), "{msg}");
         dims.obs_leaves = vec![
-            ObsLeaf { name: "walker/joints".into(), dim: 1 },
-            ObsLeaf { name: "walker/reference_pos".into(), dim: 3 },
+            ObsLeaf {
+                name: "walker/joints".into(),
+                dim: 1,
+            },
+            ObsLeaf {
+                name: "walker/reference_pos".into(),
+                dim: 3,
+            },
         ];
         bind_config(&cfg, &dims).unwrap();
     }

@@ -21,7 +21,9 @@ use super::objectives::{BoundObjectives, LearnerDims, bind_config};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
-use crate::nets::{ActOutput, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot, ValueNet};
+use crate::nets::{
+    ActOutput, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot, ValueNet,
+};
 use std::time::Instant;
 use tch::{Device, Kind, Tensor, nn};
 
@@ -54,7 +56,10 @@ fn frozen_copy<N>(
 
 /// The critics of either family.
 #[derive(Debug)]
-#[allow(clippy::large_enum_variant, reason = "one per learner; boxing buys nothing")]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per learner; boxing buys nothing"
+)]
 pub(crate) enum Critics {
     /// MO-MPO: Q_c(s, a) with a frozen target copy (C.1).
     Q {
@@ -106,8 +111,13 @@ pub struct Learner {
 }
 
 pub(crate) fn to_vec(t: &Tensor) -> Vec<f32> {
-    Vec::<f32>::try_from(&t.detach().to_device(Device::Cpu).to_kind(Kind::Float).flatten(0, -1))
-        .unwrap_or_default()
+    Vec::<f32>::try_from(
+        &t.detach()
+            .to_device(Device::Cpu)
+            .to_kind(Kind::Float)
+            .flatten(0, -1),
+    )
+    .unwrap_or_default()
 }
 
 pub(crate) fn ms_since(start: Instant, device: Device) -> f64 {
@@ -117,7 +127,11 @@ pub(crate) fn ms_since(start: Instant, device: Device) -> f64 {
 
 impl Learner {
     /// Builds networks (seeded by `cfg.seed`), target copies, optimizers and duals.
-    pub fn new(cfg: LearnerConfig, dims: LearnerDims, device: Device) -> Result<Self, LearnerError> {
+    pub fn new(
+        cfg: LearnerConfig,
+        dims: LearnerDims,
+        device: Device,
+    ) -> Result<Self, LearnerError> {
         let bound = bind_config(&cfg, &dims)?;
         let settings = cfg.shared();
         tch::manual_seed(cfg.seed as i64);
@@ -125,33 +139,54 @@ impl Learner {
         let heads = bound.critic_names.len() as i64;
         let policy_vs = nn::VarStore::new(device);
         let policy = Policy::new(&(policy_vs.root() / "policy"), net, &dims);
-        let (target_policy_vs, target_policy) =
-            frozen_copy(&policy_vs, |vs| Policy::new(&(vs.root() / "policy"), net, &dims))?;
+        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, |vs| {
+            Policy::new(&(vs.root() / "policy"), net, &dims)
+        })?;
         let critic_vs = nn::VarStore::new(device);
         let critics = if cfg.algorithm.on_policy() {
-            Critics::V { online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads) }
+            Critics::V {
+                online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads),
+            }
         } else {
             let build = |vs: &nn::VarStore| {
-                MultiCritic::new(&(vs.root() / "critic"), net, dims.obs_dim, dims.action, heads)
+                MultiCritic::new(
+                    &(vs.root() / "critic"),
+                    net,
+                    dims.obs_dim,
+                    dims.action,
+                    heads,
+                )
             };
             let online = build(&critic_vs);
             let (target_vs, target) = frozen_copy(&critic_vs, build)?;
-            Critics::Q { online, target, target_vs }
+            Critics::Q {
+                online,
+                target,
+                target_vs,
+            }
         };
         let adam = AdamConfig::new(settings.learning_rate, settings.adam_eps);
         let policy_opt = Adam::for_var_store(&policy_vs, adam);
         let critic_opt = Adam::for_var_store(&critic_vs, adam);
         let temperatures = vec![settings.init_temperature; bound.objectives.len()];
         let alphas = match dims.action {
-            ActionKind::Continuous { .. } => vec![settings.init_alpha_mean, settings.init_alpha_cov],
+            ActionKind::Continuous { .. } => {
+                vec![settings.init_alpha_mean, settings.init_alpha_cov]
+            }
             ActionKind::Discrete { .. } => vec![settings.init_alpha_categorical],
         };
         let duals = Duals::new(&temperatures, &alphas, settings.dual_learning_rate, device);
         let eps: Vec<f32> = bound.objectives.iter().map(|o| o.epsilon as f32).collect();
         let epsilon = Tensor::from_slice(&eps).to_device(device);
-        let w: Vec<f32> = bound.critic_reward_weights.iter().flatten().map(|&w| w as f32).collect();
-        let critic_reward_weights =
-            Tensor::from_slice(&w).reshape([dims.reward_names.len() as i64, heads]).to_device(device);
+        let w: Vec<f32> = bound
+            .critic_reward_weights
+            .iter()
+            .flatten()
+            .map(|&w| w as f32)
+            .collect();
+        let critic_reward_weights = Tensor::from_slice(&w)
+            .reshape([dims.reward_names.len() as i64, heads])
+            .to_device(device);
         Ok(Self {
             cfg,
             settings,
@@ -217,8 +252,16 @@ impl Learner {
 
     /// One learner step of the configured algorithm on B sequences of T steps.
     pub fn step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
-        batch.check(self.dims.obs_dim, self.dims.action, self.dims.reward_names.len() as i64)?;
-        if self.cfg.algorithm.on_policy() { self.vmpo_step(batch) } else { self.mpo_step(batch) }
+        batch.check(
+            self.dims.obs_dim,
+            self.dims.action,
+            self.dims.reward_names.len() as i64,
+        )?;
+        if self.cfg.algorithm.on_policy() {
+            self.vmpo_step(batch)
+        } else {
+            self.mpo_step(batch)
+        }
     }
 
     /// Rewards of the critic heads. # Shapes `rewards [T, B, K_env] -> [T, B, C]`.
@@ -263,10 +306,15 @@ impl Learner {
                     beta_cov: s.beta_cov,
                 };
                 let out = gaussian_mstep(online, target, actions, weights, &region);
-                (out.policy_loss, out.alpha_loss, Tensor::stack(&[out.kl_mean, out.kl_cov], 0))
+                (
+                    out.policy_loss,
+                    out.alpha_loss,
+                    Tensor::stack(&[out.kl_mean, out.kl_cov], 0),
+                )
             }
             (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
-                let out = categorical_mstep(online, target, weights, &alpha.get(0), s.beta_categorical);
+                let out =
+                    categorical_mstep(online, target, weights, &alpha.get(0), s.beta_categorical);
                 (out.policy_loss, out.alpha_loss, out.kl.unsqueeze(0))
             }
             _ => unreachable!("online and target policies have the same kind"),
@@ -283,7 +331,10 @@ impl Learner {
     }
 
     /// Counts the step, copies the targets when due, and reports the step.
-    pub(crate) fn finish_step(&mut self, measured: StepMeasures) -> Result<LearnerStats, LearnerError> {
+    pub(crate) fn finish_step(
+        &mut self,
+        measured: StepMeasures,
+    ) -> Result<LearnerStats, LearnerError> {
         let start = Instant::now();
         self.advance_targets()?;
         let target_update_ms = ms_since(start, self.device);
@@ -296,7 +347,10 @@ impl Learner {
             q_mean: to_vec(&measured.value_mean),
             alpha,
             policy_kl: to_vec(&measured.policy_kl),
-            timings: PhaseTimings { target_update_ms, ..measured.timings },
+            timings: PhaseTimings {
+                target_update_ms,
+                ..measured.timings
+            },
         })
     }
 

@@ -99,9 +99,8 @@ impl Algorithm {
     /// The scalarization (epsilon, weights) of the scalarized baselines.
     pub fn scalarization(&self) -> Option<(f64, &[ObjectiveWeight])> {
         match self {
-            Algorithm::ScalarizedMpo { epsilon, weights } | Algorithm::ScalarizedVmpo { epsilon, weights } => {
-                Some((*epsilon, weights))
-            }
+            Algorithm::ScalarizedMpo { epsilon, weights }
+            | Algorithm::ScalarizedVmpo { epsilon, weights } => Some((*epsilon, weights)),
             Algorithm::MoMpo | Algorithm::MoVmpo => None,
         }
     }
@@ -303,11 +302,27 @@ mod tests {
     fn vmpo_defaults_are_table_5() {
         let v = VmpoConfig::default();
         assert_eq!((v.beta_mean, v.beta_cov), (0.1, 1e-5));
-        assert_eq!((v.learning_rate, v.batch_size, v.unroll_length), (1e-4, 128, 32));
-        assert_eq!((v.init_temperature, v.discount, v.top_k_fraction), (1.0, 0.95, 0.5));
-        let c = LearnerConfig { algorithm: Algorithm::MoVmpo, ..LearnerConfig::default() };
-        assert_eq!((c.shared().batch_size, c.shared().sequence_length), (128, 32));
-        assert_eq!(LearnerConfig::default().shared().sequence_length, 8, "MPO: the Retrace length");
+        assert_eq!(
+            (v.learning_rate, v.batch_size, v.unroll_length),
+            (1e-4, 128, 32)
+        );
+        assert_eq!(
+            (v.init_temperature, v.discount, v.top_k_fraction),
+            (1.0, 0.95, 0.5)
+        );
+        let c = LearnerConfig {
+            algorithm: Algorithm::MoVmpo,
+            ..LearnerConfig::default()
+        };
+        assert_eq!(
+            (c.shared().batch_size, c.shared().sequence_length),
+            (128, 32)
+        );
+        assert_eq!(
+            LearnerConfig::default().shared().sequence_length,
+            8,
+            "MPO: the Retrace length"
+        );
     }
 
     #[test]

@@ -93,11 +93,31 @@ impl MpoConfig {
         ] {
             check(finite_pos(v), field, "> 0", v)?;
         }
-        check(m.retrace_length >= 1, "mpo.retrace_length", ">= 1", m.retrace_length)?;
-        check((0.0..=1.0).contains(&m.discount), "mpo.discount", "in [0, 1]", m.discount)?;
-        check(m.target_update_period >= 1, "mpo.target_update_period", ">= 1", m.target_update_period)?;
+        check(
+            m.retrace_length >= 1,
+            "mpo.retrace_length",
+            ">= 1",
+            m.retrace_length,
+        )?;
+        check(
+            (0.0..=1.0).contains(&m.discount),
+            "mpo.discount",
+            "in [0, 1]",
+            m.discount,
+        )?;
+        check(
+            m.target_update_period >= 1,
+            "mpo.target_update_period",
+            ">= 1",
+            m.target_update_period,
+        )?;
         check(m.batch_size >= 1, "mpo.batch_size", ">= 1", m.batch_size)?;
-        check(m.replay_capacity >= m.batch_size, "mpo.replay_capacity", ">= mpo.batch_size", m.replay_capacity)?;
+        check(
+            m.replay_capacity >= m.batch_size,
+            "mpo.replay_capacity",
+            ">= mpo.batch_size",
+            m.replay_capacity,
+        )?;
         if let Some(c) = m.grad_clip_norm {
             check(finite_pos(c), "mpo.grad_clip_norm", "> 0 when set", c)?;
         }

@@ -96,7 +96,10 @@ impl NetworkConfig {
         check(
             (1..=self.critic_layers.len()).contains(&self.critic_shared_layers),
             "network.critic_shared_layers",
-            &format!("in 1..={} (the number of critic_layers)", self.critic_layers.len()),
+            &format!(
+                "in 1..={} (the number of critic_layers)",
+                self.critic_layers.len()
+            ),
             self.critic_shared_layers,
         )?;
         check(
@@ -105,9 +108,19 @@ impl NetworkConfig {
             "> 0",
             self.min_variance,
         )?;
-        if let Architecture::Mocap { encoder_layers, latent_dim, reference_match } = &self.architecture {
+        if let Architecture::Mocap {
+            encoder_layers,
+            latent_dim,
+            reference_match,
+        } = &self.architecture
+        {
             positive_sizes("network.architecture.encoder_layers", encoder_layers)?;
-            check(*latent_dim > 0, "network.architecture.latent_dim", "> 0", latent_dim)?;
+            check(
+                *latent_dim > 0,
+                "network.architecture.latent_dim",
+                "> 0",
+                latent_dim,
+            )?;
             check(
                 !reference_match.is_empty(),
                 "network.architecture.reference_match",

@@ -76,8 +76,18 @@ impl VmpoConfig {
     /// Checks every field.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let v = self;
-        check(v.unroll_length >= 1, "vmpo.unroll_length", ">= 1", v.unroll_length)?;
-        check((0.0..=1.0).contains(&v.discount), "vmpo.discount", "in [0, 1]", v.discount)?;
+        check(
+            v.unroll_length >= 1,
+            "vmpo.unroll_length",
+            ">= 1",
+            v.unroll_length,
+        )?;
+        check(
+            (0.0..=1.0).contains(&v.discount),
+            "vmpo.discount",
+            "in [0, 1]",
+            v.discount,
+        )?;
         check(
             v.top_k_fraction > 0.0 && v.top_k_fraction <= 1.0,
             "vmpo.top_k_fraction",
@@ -99,7 +109,12 @@ impl VmpoConfig {
             check(finite_pos(x), field, "> 0", x)?;
         }
         check(v.batch_size >= 1, "vmpo.batch_size", ">= 1", v.batch_size)?;
-        check(v.target_update_period >= 1, "vmpo.target_update_period", ">= 1", v.target_update_period)?;
+        check(
+            v.target_update_period >= 1,
+            "vmpo.target_update_period",
+            ">= 1",
+            v.target_update_period,
+        )?;
         if let Some(c) = v.grad_clip_norm {
             check(finite_pos(c), "vmpo.grad_clip_norm", "> 0 when set", c)?;
         }

@@ -28,14 +28,22 @@ impl HostTensor {
     pub fn from_f32(shape: Vec<usize>, values: &[f32]) -> Self {
         debug_assert_eq!(shape.iter().product::<usize>(), values.len());
         let data = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-        Self { dtype: DType::Float32, shape, data }
+        Self {
+            dtype: DType::Float32,
+            shape,
+            data,
+        }
     }
 
     /// An int64 tensor; `values.len()` must equal the product of `shape`.
     pub fn from_i64(shape: Vec<usize>, values: &[i64]) -> Self {
         debug_assert_eq!(shape.iter().product::<usize>(), values.len());
         let data = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-        Self { dtype: DType::Int64, shape, data }
+        Self {
+            dtype: DType::Int64,
+            shape,
+            data,
+        }
     }
 
     /// Number of elements.
@@ -46,13 +54,20 @@ impl HostTensor {
     /// Every element converted to f32 (integers and bools included).
     pub fn to_f32_vec(&self) -> Vec<f32> {
         fn chunks<const N: usize>(data: &[u8]) -> impl Iterator<Item = [u8; N]> + '_ {
-            data.chunks_exact(N).map(|c| c.try_into().expect("exact chunk"))
+            data.chunks_exact(N)
+                .map(|c| c.try_into().expect("exact chunk"))
         }
         match self.dtype {
             DType::Float32 => chunks::<4>(&self.data).map(f32::from_le_bytes).collect(),
-            DType::Float64 => chunks::<8>(&self.data).map(|b| f64::from_le_bytes(b) as f32).collect(),
-            DType::Int32 => chunks::<4>(&self.data).map(|b| i32::from_le_bytes(b) as f32).collect(),
-            DType::Int64 => chunks::<8>(&self.data).map(|b| i64::from_le_bytes(b) as f32).collect(),
+            DType::Float64 => chunks::<8>(&self.data)
+                .map(|b| f64::from_le_bytes(b) as f32)
+                .collect(),
+            DType::Int32 => chunks::<4>(&self.data)
+                .map(|b| i32::from_le_bytes(b) as f32)
+                .collect(),
+            DType::Int64 => chunks::<8>(&self.data)
+                .map(|b| i64::from_le_bytes(b) as f32)
+                .collect(),
             DType::Uint8 | DType::Bool => self.data.iter().map(|&b| f32::from(b)).collect(),
         }
     }
@@ -77,7 +92,10 @@ pub struct Observation {
 impl Observation {
     /// Rows (batch size) of the observation; 0 when empty.
     pub fn batch_size(&self) -> usize {
-        self.leaves.first().and_then(|l| l.tensor.shape.first().copied()).unwrap_or(0)
+        self.leaves
+            .first()
+            .and_then(|l| l.tensor.shape.first().copied())
+            .unwrap_or(0)
     }
 
     /// Flatten every leaf of every row into `[B, obs_dim]` f32, leaves concatenated per row.
@@ -87,7 +105,10 @@ impl Observation {
             return self.leaves[0].tensor.to_f32_vec();
         }
         let per_leaf: Vec<Vec<f32>> = self.leaves.iter().map(|l| l.tensor.to_f32_vec()).collect();
-        let widths: Vec<usize> = per_leaf.iter().map(|v| v.len().checked_div(b).unwrap_or(0)).collect();
+        let widths: Vec<usize> = per_leaf
+            .iter()
+            .map(|v| v.len().checked_div(b).unwrap_or(0))
+            .collect();
         let mut out = Vec::with_capacity(per_leaf.iter().map(Vec::len).sum());
         for row in 0..b {
             for (values, &w) in per_leaf.iter().zip(&widths) {
@@ -182,13 +203,20 @@ impl MakeOptions {
 }
 
 /// A batch of B environment instances with a vector reward.
-#[allow(async_fn_in_trait, reason = "used with concrete types inside this crate's runtime")]
+#[allow(
+    async_fn_in_trait,
+    reason = "used with concrete types inside this crate's runtime"
+)]
 pub trait Env {
     /// The session's spec.
     fn spec(&self) -> &EnvSpec;
 
     /// Reset the given instances (empty = all) with optional seeds.
-    async fn reset(&mut self, env_indices: &[usize], seeds: &[u64]) -> Result<ResetResult, EnvError>;
+    async fn reset(
+        &mut self,
+        env_indices: &[usize],
+        seeds: &[u64],
+    ) -> Result<ResetResult, EnvError>;
 
     /// Step all B instances; `action` is `[B, ...]` (f32 Box or i64 Discrete).
     async fn step(&mut self, action: &HostTensor) -> Result<StepResult, EnvError>;
@@ -199,14 +227,22 @@ pub trait Env {
 
 /// Uniformly random actions for all B instances: inside the Box bounds (unbounded
 /// dimensions use [-1, 1]) or uniform over the Discrete choices.
-pub fn random_action<R: rand::RngExt>(space: &crate::spec::Space, num_envs: usize, rng: &mut R) -> HostTensor {
+pub fn random_action<R: rand::RngExt>(
+    space: &crate::spec::Space,
+    num_envs: usize,
+    rng: &mut R,
+) -> HostTensor {
     use crate::spec::Space;
     match space {
         Space::Box(b) => {
             let mut values = Vec::with_capacity(num_envs * b.numel());
             for _ in 0..num_envs {
                 for (&lo, &hi) in b.low.iter().zip(&b.high) {
-                    let (lo, hi) = if lo.is_finite() && hi.is_finite() { (lo, hi) } else { (-1.0, 1.0) };
+                    let (lo, hi) = if lo.is_finite() && hi.is_finite() {
+                        (lo, hi)
+                    } else {
+                        (-1.0, 1.0)
+                    };
                     values.push(rng.random_range(lo..=hi) as f32);
                 }
             }
@@ -215,7 +251,9 @@ pub fn random_action<R: rand::RngExt>(space: &crate::spec::Space, num_envs: usiz
             HostTensor::from_f32(shape, &values)
         }
         Space::Discrete(d) => {
-            let values: Vec<i64> = (0..num_envs).map(|_| d.start + rng.random_range(0..d.n)).collect();
+            let values: Vec<i64> = (0..num_envs)
+                .map(|_| d.start + rng.random_range(0..d.n))
+                .collect();
             HostTensor::from_i64(vec![num_envs], &values)
         }
         Space::Dict(_) => panic!("Dict action spaces are not supported by random_action"),

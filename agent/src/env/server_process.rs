@@ -28,7 +28,12 @@ pub struct ServerOptions {
 
 impl Default for ServerOptions {
     fn default() -> Self {
-        Self { python: default_python(), port: 0, extra_args: Vec::new(), startup_timeout: Duration::from_secs(120) }
+        Self {
+            python: default_python(),
+            port: 0,
+            extra_args: Vec::new(),
+            startup_timeout: Duration::from_secs(120),
+        }
     }
 }
 
@@ -39,7 +44,11 @@ pub fn default_python() -> PathBuf {
         return PathBuf::from(p);
     }
     let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/python");
-    if venv.exists() { venv } else { PathBuf::from("python3") }
+    if venv.exists() {
+        venv
+    } else {
+        PathBuf::from("python3")
+    }
 }
 
 /// A running `env_server` child process; killed when dropped.
@@ -54,12 +63,26 @@ impl LocalServer {
     pub async fn start(options: &ServerOptions) -> Result<Self, EnvError> {
         let mut command = Command::new(&options.python);
         command
-            .args(["-m", "env_server", "--host", "127.0.0.1", "--port", &options.port.to_string()])
+            .args([
+                "-m",
+                "env_server",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                &options.port.to_string(),
+            ])
             .args(&options.extra_args)
             // A spawned server is a helper of this process: only its warnings and errors
             // reach the terminal (pass --log-level in extra_args to see more).
-            .args(if options.extra_args.iter().any(|a| a == "--log-level") { &[][..] } else { &["--log-level", "WARNING"][..] })
-            .env("MUJOCO_GL", std::env::var("MUJOCO_GL").unwrap_or_else(|_| "disable".into()))
+            .args(if options.extra_args.iter().any(|a| a == "--log-level") {
+                &[][..]
+            } else {
+                &["--log-level", "WARNING"][..]
+            })
+            .env(
+                "MUJOCO_GL",
+                std::env::var("MUJOCO_GL").unwrap_or_else(|_| "disable".into()),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -73,18 +96,32 @@ impl LocalServer {
         let stdout = child.stdout.take().expect("stdout is piped");
         let mut lines = BufReader::new(stdout).lines();
         let listening = tokio::time::timeout(options.startup_timeout, async {
-            while let Some(line) = lines.next_line().await.map_err(|e| EnvError::Process(e.to_string()))? {
+            while let Some(line) = lines
+                .next_line()
+                .await
+                .map_err(|e| EnvError::Process(e.to_string()))?
+            {
                 if let Some(address) = line.strip_prefix("LISTENING ") {
                     return Ok(address.trim().to_string());
                 }
             }
-            Err(EnvError::Process("exited before printing its LISTENING line (see its stderr above)".into()))
+            Err(EnvError::Process(
+                "exited before printing its LISTENING line (see its stderr above)".into(),
+            ))
         })
         .await
-        .map_err(|_| EnvError::Process(format!("no LISTENING line within {:?}", options.startup_timeout)))??;
+        .map_err(|_| {
+            EnvError::Process(format!(
+                "no LISTENING line within {:?}",
+                options.startup_timeout
+            ))
+        })??;
         // Keep draining stdout so the server never blocks on a full pipe.
         tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
-        Ok(Self { child, address: listening })
+        Ok(Self {
+            child,
+            address: listening,
+        })
     }
 
     /// `host:port` the server listens on.
@@ -94,23 +131,36 @@ impl LocalServer {
 
     /// Port the server listens on.
     pub fn port(&self) -> u16 {
-        self.address.rsplit(':').next().and_then(|p| p.parse().ok()).unwrap_or(0)
+        self.address
+            .rsplit(':')
+            .next()
+            .and_then(|p| p.parse().ok())
+            .unwrap_or(0)
     }
 
     /// Ask the server to shut down (SIGTERM) and wait up to 10 s, then kill it.
     pub async fn stop(mut self) -> Result<(), EnvError> {
         if let Some(pid) = self.child.id() {
             // `kill` failing only means the server already exited.
-            let _ = std::process::Command::new("kill").args(["-TERM", &pid.to_string()]).status();
+            let _ = std::process::Command::new("kill")
+                .args(["-TERM", &pid.to_string()])
+                .status();
         }
         match tokio::time::timeout(Duration::from_secs(10), self.child.wait()).await {
             Ok(_) => Ok(()),
-            Err(_) => self.child.kill().await.map_err(|e| EnvError::Process(e.to_string())),
+            Err(_) => self
+                .child
+                .kill()
+                .await
+                .map_err(|e| EnvError::Process(e.to_string())),
         }
     }
 
     /// Kill the server at once (SIGKILL), as a crash would.
     pub async fn kill(mut self) -> Result<(), EnvError> {
-        self.child.kill().await.map_err(|e| EnvError::Process(e.to_string()))
+        self.child
+            .kill()
+            .await
+            .map_err(|e| EnvError::Process(e.to_string()))
     }
 }

@@ -56,7 +56,15 @@ impl MultiCritic {
         let shared_hidden = layers[..n_shared]
             .windows(2)
             .enumerate()
-            .map(|(i, w)| Dense::new(&(&shared / format!("linear_{}", i + 1)), w[0], w[1], w[0], true))
+            .map(|(i, w)| {
+                Dense::new(
+                    &(&shared / format!("linear_{}", i + 1)),
+                    w[0],
+                    w[1],
+                    w[0],
+                    true,
+                )
+            })
             .collect();
         let heads = HeadStack::new(&(p / "heads"), num_heads, &layers[n_shared - 1..]);
         Self {
@@ -110,7 +118,10 @@ impl MultiCritic {
             let _ = h.g_add_(per_state);
         } else {
             // The one-hot table of all actions is `[A, 1, h1]`: broadcast out of place.
-            #[allow(clippy::assign_op_pattern, reason = "`+=` is in place and cannot broadcast")]
+            #[allow(
+                clippy::assign_op_pattern,
+                reason = "`+=` is in place and cannot broadcast"
+            )]
             {
                 h = h + per_state;
             }
@@ -134,7 +145,8 @@ impl MultiCritic {
         let eval = |a: &Tensor| {
             let h = self.first_layer_from(&per_state, &self.action_features(a));
             let rows = h.size()[0];
-            self.heads_forward(&h.reshape([rows * n, -1])).reshape([rows, n, self.num_heads])
+            self.heads_forward(&h.reshape([rows * n, -1]))
+                .reshape([rows, n, self.num_heads])
         };
         if per_state.requires_grad() || m * n <= CHUNK_ROWS {
             return eval(actions);
@@ -144,7 +156,10 @@ impl MultiCritic {
         // element-wise passes that follow it, instead of streaming the whole
         // [M N, h] tensor through memory once per pass.
         let per_chunk = (CHUNK_ROWS / n).max(1);
-        let chunks: Vec<Tensor> = (0..m).step_by(per_chunk as usize).map(|s| eval(&actions.narrow(0, s, per_chunk.min(m - s)))).collect();
+        let chunks: Vec<Tensor> = (0..m)
+            .step_by(per_chunk as usize)
+            .map(|s| eval(&actions.narrow(0, s, per_chunk.min(m - s))))
+            .collect();
         Tensor::cat(&chunks, 0)
     }
 

@@ -35,11 +35,18 @@ fn leaves(prefix: &str, space: &Space, out: &mut Vec<ObsLeaf>) {
     match space {
         Space::Dict(entries) => {
             for (key, sub) in entries {
-                let name = if prefix.is_empty() { key.clone() } else { format!("{prefix}.{key}") };
+                let name = if prefix.is_empty() {
+                    key.clone()
+                } else {
+                    format!("{prefix}.{key}")
+                };
                 leaves(&name, sub, out);
             }
         }
-        other => out.push(ObsLeaf { name: prefix.to_string(), dim: other.flat_dim() as i64 }),
+        other => out.push(ObsLeaf {
+            name: prefix.to_string(),
+            dim: other.flat_dim() as i64,
+        }),
     }
 }
 
@@ -47,7 +54,9 @@ impl LearnerDims {
     /// Reads the dimensions from a spec; a Dict action space is rejected.
     pub fn from_spec(spec: &EnvSpec) -> Result<Self, ConfigError> {
         let action = match &spec.action_space {
-            Space::Box(b) => ActionKind::Continuous { dim: b.numel() as i64 },
+            Space::Box(b) => ActionKind::Continuous {
+                dim: b.numel() as i64,
+            },
             Space::Discrete(d) => ActionKind::Discrete { n: d.n },
             other => {
                 return Err(ConfigError::Invalid {
@@ -62,17 +71,28 @@ impl LearnerDims {
         Ok(Self {
             obs_dim: spec.observation_space.flat_dim() as i64,
             action,
-            reward_names: spec.objective_names().into_iter().map(String::from).collect(),
+            reward_names: spec
+                .objective_names()
+                .into_iter()
+                .map(String::from)
+                .collect(),
             obs_leaves,
         })
     }
 
     /// Flat indices of the leaves whose name contains `pattern`, and of the others.
     pub fn split_observation(&self, pattern: &str) -> ObsSplit {
-        let mut split = ObsSplit { matching: Vec::new(), rest: Vec::new() };
+        let mut split = ObsSplit {
+            matching: Vec::new(),
+            rest: Vec::new(),
+        };
         let mut start = 0;
         for leaf in &self.obs_leaves {
-            let side = if leaf.name.contains(pattern) { &mut split.matching } else { &mut split.rest };
+            let side = if leaf.name.contains(pattern) {
+                &mut split.matching
+            } else {
+                &mut split.rest
+            };
             side.extend(start..start + leaf.dim);
             start += leaf.dim;
         }

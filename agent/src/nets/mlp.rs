@@ -149,8 +149,14 @@ struct StackedDense {
 impl StackedDense {
     fn new(p: &nn::Path, heads: i64, input: i64, output: i64) -> Self {
         let bound = 1.0 / (input as f64).sqrt();
-        let init = nn::Init::Uniform { lo: -bound, up: bound };
-        Self { weight: p.var("weight", &[heads, input, output], init), bias: p.var("bias", &[heads, 1, output], init) }
+        let init = nn::Init::Uniform {
+            lo: -bound,
+            up: bound,
+        };
+        Self {
+            weight: p.var("weight", &[heads, input, output], init),
+            bias: p.var("bias", &[heads, 1, output], init),
+        }
     }
 
     /// `[C or 1, P, in] -> [C, P, out]`.

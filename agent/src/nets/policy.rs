@@ -162,8 +162,12 @@ impl Policy {
     /// Builds the policy for `dims.action` under `p`.
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims) -> Self {
         match dims.action {
-            ActionKind::Continuous { dim } => Policy::Gaussian(GaussianPolicy::new(p, cfg, dims, dim)),
-            ActionKind::Discrete { n } => Policy::Categorical(CategoricalPolicy::new(p, cfg, dims, n)),
+            ActionKind::Continuous { dim } => {
+                Policy::Gaussian(GaussianPolicy::new(p, cfg, dims, dim))
+            }
+            ActionKind::Discrete { n } => {
+                Policy::Categorical(CategoricalPolicy::new(p, cfg, dims, n))
+            }
         }
     }
 
@@ -194,7 +198,9 @@ impl Policy {
     pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
         tch::no_grad(|| {
             // The deterministic policy uses the latent's mean (zero noise).
-            let noise = self.latent_noise(obs.size()[0]).map(|n| if deterministic { n.zeros_like() } else { n });
+            let noise = self
+                .latent_noise(obs.size()[0])
+                .map(|n| if deterministic { n.zeros_like() } else { n });
             let out = self.forward_with_noise(obs, noise.as_ref());
             let actions = match &out {
                 PolicyOutput::Gaussian(g) if deterministic => g.mean.shallow_clone(),
@@ -217,7 +223,12 @@ mod tests {
     use tch::Device;
 
     fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
-        LearnerDims { obs_dim, action, reward_names: vec!["r".into()], obs_leaves: Vec::new() }
+        LearnerDims {
+            obs_dim,
+            action,
+            reward_names: vec!["r".into()],
+            obs_leaves: Vec::new(),
+        }
     }
 
     #[test]
@@ -227,7 +238,12 @@ mod tests {
             min_variance: 1e-4,
             ..NetworkConfig::default()
         };
-        let policy = GaussianPolicy::new(&vs.root(), &cfg, &dims(3, ActionKind::Continuous { dim: 2 }), 2);
+        let policy = GaussianPolicy::new(
+            &vs.root(),
+            &cfg,
+            &dims(3, ActionKind::Continuous { dim: 2 }),
+            2,
+        );
         let obs = Tensor::randn([64, 3], (Kind::Float, Device::Cpu)) * 1e3;
         let out = policy.forward(&obs, None);
         assert!(out.std.min().double_value(&[]) >= 1e-2);
@@ -238,7 +254,11 @@ mod tests {
     #[test]
     fn categorical_act_returns_indices_and_log_probs() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let policy = Policy::new(&vs.root(), &NetworkConfig::default(), &dims(3, ActionKind::Discrete { n: 4 }));
+        let policy = Policy::new(
+            &vs.root(),
+            &NetworkConfig::default(),
+            &dims(3, ActionKind::Discrete { n: 4 }),
+        );
         let act = policy.act(&Tensor::zeros([6, 3], (Kind::Float, Device::Cpu)), false);
         assert_eq!(act.actions.size(), vec![6]);
         assert_eq!(act.actions.kind(), Kind::Int64);

@@ -33,7 +33,10 @@ pub struct MocapTorso {
 impl MocapTorso {
     /// The latent noise for `rows` states. # Shapes `-> [B, L]`.
     pub fn noise(&self, rows: i64) -> Tensor {
-        Tensor::randn([rows, self.latent_dim], (Kind::Float, self.proprio_idx.device()))
+        Tensor::randn(
+            [rows, self.latent_dim],
+            (Kind::Float, self.proprio_idx.device()),
+        )
     }
 
     /// # Shapes
@@ -64,8 +67,16 @@ impl Torso {
     /// proprioceptive leaves; `algo::objectives::bind_config` rejects such configs first.
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims) -> Self {
         match &cfg.architecture {
-            Architecture::Mlp => Torso::Mlp(LayerNormMlp::new(&(p / "torso"), dims.obs_dim, &cfg.policy_layers)),
-            Architecture::Mocap { encoder_layers, latent_dim, reference_match } => {
+            Architecture::Mlp => Torso::Mlp(LayerNormMlp::new(
+                &(p / "torso"),
+                dims.obs_dim,
+                &cfg.policy_layers,
+            )),
+            Architecture::Mocap {
+                encoder_layers,
+                latent_dim,
+                reference_match,
+            } => {
                 let split = dims.split_observation(reference_match);
                 assert!(
                     !split.matching.is_empty() && !split.rest.is_empty(),
@@ -75,7 +86,8 @@ impl Torso {
                 let width = encoder.output_dim();
                 let latent = Dense::new(&(p / "latent"), width, 2 * latent_dim, width, true);
                 let proprio = split.rest.len() as i64;
-                let policy = LayerNormMlp::new(&(p / "torso"), latent_dim + proprio, &cfg.policy_layers);
+                let policy =
+                    LayerNormMlp::new(&(p / "torso"), latent_dim + proprio, &cfg.policy_layers);
                 Torso::Mocap(Box::new(MocapTorso {
                     encoder,
                     latent,
@@ -129,8 +141,14 @@ mod tests {
             action: ActionKind::Continuous { dim: 2 },
             reward_names: vec!["a".into()],
             obs_leaves: vec![
-                ObsLeaf { name: "walker/joints".into(), dim: 2 },
-                ObsLeaf { name: "walker/reference_rel".into(), dim: 3 },
+                ObsLeaf {
+                    name: "walker/joints".into(),
+                    dim: 2,
+                },
+                ObsLeaf {
+                    name: "walker/reference_rel".into(),
+                    dim: 3,
+                },
             ],
         };
         let cfg = NetworkConfig {
@@ -149,8 +167,18 @@ mod tests {
         assert_eq!(xi.size(), vec![3, 4]);
         let a = torso.forward(&obs, Some(&xi));
         assert_eq!(a.size(), vec![3, 8]);
-        assert!(a.allclose(&torso.forward(&obs, Some(&xi)), 1e-6, 1e-6, false), "same noise, same output");
-        assert!(!a.allclose(&torso.forward(&obs, Some(&(xi + 1.0))), 1e-4, 1e-4, false), "the latent matters");
-        assert_eq!(vs.variables().len(), 2 + 2 + 2 + 2 + 2, "encoder (linear+norm), latent, policy (linear+norm)");
+        assert!(
+            a.allclose(&torso.forward(&obs, Some(&xi)), 1e-6, 1e-6, false),
+            "same noise, same output"
+        );
+        assert!(
+            !a.allclose(&torso.forward(&obs, Some(&(xi + 1.0))), 1e-4, 1e-4, false),
+            "the latent matters"
+        );
+        assert_eq!(
+            vs.variables().len(),
+            2 + 2 + 2 + 2 + 2,
+            "encoder (linear+norm), latent, policy (linear+norm)"
+        );
     }
 }

@@ -42,13 +42,20 @@ mod tests {
 
     #[test]
     fn heads_share_the_torso_and_differ_after_it() {
-        let cfg = NetworkConfig { critic_layers: vec![16, 12, 8], critic_shared_layers: 2, ..NetworkConfig::default() };
+        let cfg = NetworkConfig {
+            critic_layers: vec![16, 12, 8],
+            critic_shared_layers: 2,
+            ..NetworkConfig::default()
+        };
         let vs = nn::VarStore::new(Device::Cpu);
         let v = ValueNet::new(&vs.root(), &cfg, 5, 3);
         let out = v.forward(&Tensor::randn([7, 5], (Kind::Float, Device::Cpu)));
         assert_eq!(out.size(), vec![7, 3]);
         let names: Vec<String> = vs.variables().into_keys().collect();
-        assert!(names.iter().any(|n| n == "shared.linear_1.weight"), "{names:?}");
+        assert!(
+            names.iter().any(|n| n == "shared.linear_1.weight"),
+            "{names:?}"
+        );
         let w = &vs.variables()["heads.linear_0.weight"];
         assert_eq!(w.size(), vec![3, 12, 8], "one [12 -> 8] layer per head");
     }

@@ -54,7 +54,12 @@ pub struct SnippetAdder {
 impl SnippetAdder {
     /// An adder waiting for its first observation.
     pub fn new(layout: SnippetLayout) -> Self {
-        Self { layout, window: VecDeque::with_capacity(layout.length), current: None, since_emit: 0 }
+        Self {
+            layout,
+            window: VecDeque::with_capacity(layout.length),
+            current: None,
+            since_emit: 0,
+        }
     }
 
     /// Start an episode at `observation`.
@@ -82,7 +87,11 @@ impl SnippetAdder {
         self.since_emit += 1;
         let ended = step.terminated || step.truncated;
         let snippet = if self.since_emit == self.layout.length || (ended && self.since_emit > 0) {
-            let fresh = if self.layout.on_policy { self.since_emit } else { self.window.len() };
+            let fresh = if self.layout.on_policy {
+                self.since_emit
+            } else {
+                self.window.len()
+            };
             self.since_emit = 0;
             Some(self.emit(step.next_observation, fresh))
         } else {
@@ -133,7 +142,14 @@ mod tests {
     use super::*;
 
     fn layout(length: usize) -> SnippetLayout {
-        SnippetLayout { length, obs_dim: 1, action_width: 1, num_rewards: 1, discrete: true, on_policy: false }
+        SnippetLayout {
+            length,
+            obs_dim: 1,
+            action_width: 1,
+            num_rewards: 1,
+            discrete: true,
+            on_policy: false,
+        }
     }
 
     /// Steps t = 0.. of an episode: obs t, action t, reward 10 t, next obs t + 1.
@@ -186,13 +202,19 @@ mod tests {
         assert_eq!(s.observations, [0.0, 1.0, 2.0, 2.0, 2.0]);
         assert_eq!(s.rewards, [0.0, 10.0, 0.0, 0.0]);
         assert_eq!(s.discounts, [1.0, 0.0, 0.0, 0.0]);
-        assert_eq!(s.behaviour_log_probs, [-1.0, -1.0, PAD_LOG_PROB, PAD_LOG_PROB]);
+        assert_eq!(
+            s.behaviour_log_probs,
+            [-1.0, -1.0, PAD_LOG_PROB, PAD_LOG_PROB]
+        );
         assert_eq!(s.valid, [1.0, 1.0, 0.0, 0.0]);
     }
 
     #[test]
     fn on_policy_unrolls_are_disjoint_and_pad_the_tail() {
-        let mut adder = SnippetAdder::new(SnippetLayout { on_policy: true, ..layout(3) });
+        let mut adder = SnippetAdder::new(SnippetLayout {
+            on_policy: true,
+            ..layout(3)
+        });
         let snippets = run(&mut adder, 7, Some(false));
         // Steps 0-2, 3-5, then step 6 alone, padded; truncation keeps its discount 1.
         assert_eq!(snippets.len(), 3);

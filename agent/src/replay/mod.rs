@@ -77,7 +77,14 @@ impl SnippetReplay {
     /// A replay holding up to `capacity_transitions / T` snippets, sampling with `seed`.
     pub fn new(layout: SnippetLayout, capacity_transitions: usize, seed: u64) -> Self {
         let capacity = (capacity_transitions / layout.length).max(1);
-        Self { layout, capacity, snippets: Vec::new(), next: 0, inserted: 0, rng: ChaCha8Rng::seed_from_u64(seed) }
+        Self {
+            layout,
+            capacity,
+            snippets: Vec::new(),
+            next: 0,
+            inserted: 0,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        }
     }
 
     /// The snippet sizes.
@@ -104,13 +111,29 @@ impl SnippetReplay {
     pub fn insert(&mut self, snippet: Snippet) -> Result<(), ReplayError> {
         let l = self.layout;
         let check = |field, expected: usize, got: usize| {
-            if expected == got { Ok(()) } else { Err(ReplayError { field, expected, got }) }
+            if expected == got {
+                Ok(())
+            } else {
+                Err(ReplayError {
+                    field,
+                    expected,
+                    got,
+                })
+            }
         };
-        check("observations", (l.length + 1) * l.obs_dim, snippet.observations.len())?;
+        check(
+            "observations",
+            (l.length + 1) * l.obs_dim,
+            snippet.observations.len(),
+        )?;
         check("actions", l.length * l.action_width, snippet.actions.len())?;
         check("rewards", l.length * l.num_rewards, snippet.rewards.len())?;
         check("discounts", l.length, snippet.discounts.len())?;
-        check("behaviour_log_probs", l.length, snippet.behaviour_log_probs.len())?;
+        check(
+            "behaviour_log_probs",
+            l.length,
+            snippet.behaviour_log_probs.len(),
+        )?;
         check("valid", l.length, snippet.valid.len())?;
         if self.snippets.len() < self.capacity {
             self.snippets.push(snippet);
@@ -130,14 +153,20 @@ impl SnippetReplay {
     pub fn sample(&mut self, batch_size: usize) -> SnippetBatch {
         assert!(!self.snippets.is_empty(), "sampling an empty replay");
         if self.layout.on_policy {
-            assert!(self.snippets.len() >= batch_size, "on-policy batch of {batch_size} from {}", self.snippets.len());
+            assert!(
+                self.snippets.len() >= batch_size,
+                "on-policy batch of {batch_size} from {}",
+                self.snippets.len()
+            );
             let picks: Vec<usize> = (0..batch_size).collect();
             let batch = self.gather(&picks);
             self.snippets.drain(..batch_size);
             self.next = self.snippets.len() % self.capacity;
             return batch;
         }
-        let picks: Vec<usize> = (0..batch_size).map(|_| self.rng.random_range(0..self.snippets.len())).collect();
+        let picks: Vec<usize> = (0..batch_size)
+            .map(|_| self.rng.random_range(0..self.snippets.len()))
+            .collect();
         self.gather(&picks)
     }
 
@@ -158,8 +187,8 @@ impl SnippetReplay {
             out
         };
         let (t_, b_) = (t as i64, b as i64);
-        let observations =
-            Tensor::from_slice(&gather(|s| &s.observations, t + 1, l.obs_dim)).view([t_ + 1, b_, l.obs_dim as i64]);
+        let observations = Tensor::from_slice(&gather(|s| &s.observations, t + 1, l.obs_dim))
+            .view([t_ + 1, b_, l.obs_dim as i64]);
         let actions_flat = gather(|s| &s.actions, t, l.action_width);
         let actions = if l.discrete {
             let idx: Vec<i64> = actions_flat.iter().map(|&a| a as i64).collect();
@@ -170,9 +199,14 @@ impl SnippetReplay {
         SnippetBatch {
             observations,
             actions,
-            rewards: Tensor::from_slice(&gather(|s| &s.rewards, t, l.num_rewards)).view([t_, b_, l.num_rewards as i64]),
+            rewards: Tensor::from_slice(&gather(|s| &s.rewards, t, l.num_rewards)).view([
+                t_,
+                b_,
+                l.num_rewards as i64,
+            ]),
             discounts: Tensor::from_slice(&gather(|s| &s.discounts, t, 1)).view([t_, b_]),
-            behaviour_log_probs: Tensor::from_slice(&gather(|s| &s.behaviour_log_probs, t, 1)).view([t_, b_]),
+            behaviour_log_probs: Tensor::from_slice(&gather(|s| &s.behaviour_log_probs, t, 1))
+                .view([t_, b_]),
             valid: Tensor::from_slice(&gather(|s| &s.valid, t, 1)).view([t_, b_]),
         }
     }
@@ -183,7 +217,14 @@ mod tests {
     use super::*;
 
     fn layout() -> SnippetLayout {
-        SnippetLayout { length: 2, obs_dim: 1, action_width: 1, num_rewards: 2, discrete: true, on_policy: false }
+        SnippetLayout {
+            length: 2,
+            obs_dim: 1,
+            action_width: 1,
+            num_rewards: 2,
+            discrete: true,
+            on_policy: false,
+        }
     }
 
     fn snippet(tag: f32) -> Snippet {
@@ -225,25 +266,37 @@ mod tests {
         }
         assert_eq!((replay.len(), replay.inserted()), (2, 3));
         let batch = replay.sample(64);
-        let first: Vec<f64> = (0..64).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
-        assert!(first.iter().all(|&t| t == 2.0 || t == 3.0), "snippet 1 was evicted: {first:?}");
+        let first: Vec<f64> = (0..64)
+            .map(|j| batch.observations.double_value(&[0, j, 0]))
+            .collect();
+        assert!(
+            first.iter().all(|&t| t == 2.0 || t == 3.0),
+            "snippet 1 was evicted: {first:?}"
+        );
         assert!(first.contains(&2.0) && first.contains(&3.0));
     }
 
     #[test]
     fn on_policy_batches_take_the_oldest_unrolls_once() {
-        let layout = SnippetLayout { on_policy: true, ..layout() };
+        let layout = SnippetLayout {
+            on_policy: true,
+            ..layout()
+        };
         let mut queue = SnippetReplay::new(layout, usize::MAX, 0);
         for tag in [1.0, 2.0, 3.0] {
             queue.insert(snippet(tag)).unwrap();
         }
         let batch = queue.sample(2);
-        let tags: Vec<f64> = (0..2).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
+        let tags: Vec<f64> = (0..2)
+            .map(|j| batch.observations.double_value(&[0, j, 0]))
+            .collect();
         assert_eq!(tags, [1.0, 2.0]);
         assert_eq!(queue.len(), 1);
         queue.insert(snippet(4.0)).unwrap();
         let batch = queue.sample(2);
-        let tags: Vec<f64> = (0..2).map(|j| batch.observations.double_value(&[0, j, 0])).collect();
+        let tags: Vec<f64> = (0..2)
+            .map(|j| batch.observations.double_value(&[0, j, 0]))
+            .collect();
         assert_eq!(tags, [3.0, 4.0]);
         assert!(queue.is_empty());
     }

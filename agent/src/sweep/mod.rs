@@ -50,10 +50,14 @@ impl Values {
     pub fn expand(&self) -> Vec<f64> {
         match self {
             Values::List(v) => v.clone(),
-            Values::Linspace { linspace: (a, b, n) } => match n {
+            Values::Linspace {
+                linspace: (a, b, n),
+            } => match n {
                 0 => Vec::new(),
                 1 => vec![*a],
-                n => (0..*n).map(|i| a + (b - a) * i as f64 / (n - 1) as f64).collect(),
+                n => (0..*n)
+                    .map(|i| a + (b - a) * i as f64 / (n - 1) as f64)
+                    .collect(),
             },
         }
     }
@@ -163,15 +167,25 @@ pub struct SweepSummary {
 }
 
 fn invalid(field: &str, requirement: &str, got: impl std::fmt::Debug) -> ConfigError {
-    ConfigError::Invalid { field: field.into(), requirement: requirement.into(), got: format!("{got:?}") }
+    ConfigError::Invalid {
+        field: field.into(),
+        requirement: requirement.into(),
+        got: format!("{got:?}"),
+    }
 }
 
 impl SweepConfig {
     /// Read a sweep file and the base config it names.
     pub fn load(path: &Path) -> Result<(SweepConfig, TrainConfig), ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| invalid("sweep file", "readable", format!("{}: {e}", path.display())))?;
-        let sweep: SweepConfig = toml::from_str(&text)
-            .map_err(|e| invalid(&format!("sweep file {}", path.display()), "valid TOML matching the schema", e.to_string()))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| invalid("sweep file", "readable", format!("{}: {e}", path.display())))?;
+        let sweep: SweepConfig = toml::from_str(&text).map_err(|e| {
+            invalid(
+                &format!("sweep file {}", path.display()),
+                "valid TOML matching the schema",
+                e.to_string(),
+            )
+        })?;
         let base_path = path.parent().unwrap_or(Path::new(".")).join(&sweep.base);
         let base = TrainConfig::load(&base_path)?;
         sweep.validate(&base)?;
@@ -217,15 +231,26 @@ impl SweepConfig {
         if settings.is_empty() {
             return Err(invalid("grid", "a non-empty product or points", "nothing"));
         }
-        let expected_kind =
-            if base.learner.algorithm.scalarization().is_some() { GridKind::Weight } else { GridKind::Epsilon };
+        let expected_kind = if base.learner.algorithm.scalarization().is_some() {
+            GridKind::Weight
+        } else {
+            GridKind::Epsilon
+        };
         if self.grid.kind != expected_kind {
-            return Err(invalid("grid.kind", &format!("{expected_kind:?} for the base algorithm"), self.grid.kind));
+            return Err(invalid(
+                "grid.kind",
+                &format!("{expected_kind:?} for the base algorithm"),
+                self.grid.kind,
+            ));
         }
         if let Some(p) = &self.ratio_plot {
             for name in [&p.numerator, &p.denominator] {
                 if settings.iter().any(|s| !s.contains_key(name)) {
-                    return Err(invalid("ratio_plot", "objectives set in every grid setting", name));
+                    return Err(invalid(
+                        "ratio_plot",
+                        "objectives set in every grid setting",
+                        name,
+                    ));
                 }
             }
         }
@@ -237,16 +262,25 @@ impl SweepConfig {
 }
 
 /// The base config with one setting and seed applied.
-pub fn apply(base: &TrainConfig, setting: &BTreeMap<String, f64>, seed: u64) -> Result<TrainConfig, ConfigError> {
+pub fn apply(
+    base: &TrainConfig,
+    setting: &BTreeMap<String, f64>,
+    seed: u64,
+) -> Result<TrainConfig, ConfigError> {
     let mut cfg = base.clone();
     cfg.seed = seed;
     cfg.learner.seed = seed;
     match &mut cfg.learner.algorithm {
         Algorithm::MoMpo | Algorithm::MoVmpo => {
             for (name, &epsilon) in setting {
-                let o = cfg.learner.objectives.iter_mut().find(|o| &o.name == name).ok_or_else(|| {
-                    invalid("grid", "names of the base config's objectives", name)
-                })?;
+                let o = cfg
+                    .learner
+                    .objectives
+                    .iter_mut()
+                    .find(|o| &o.name == name)
+                    .ok_or_else(|| {
+                        invalid("grid", "names of the base config's objectives", name)
+                    })?;
                 o.epsilon = epsilon;
             }
         }
@@ -254,7 +288,10 @@ pub fn apply(base: &TrainConfig, setting: &BTreeMap<String, f64>, seed: u64) -> 
             for (name, &weight) in setting {
                 match weights.iter_mut().find(|w| &w.name == name) {
                     Some(w) => w.weight = weight,
-                    None => weights.push(ObjectiveWeight { name: name.clone(), weight }),
+                    None => weights.push(ObjectiveWeight {
+                        name: name.clone(),
+                        weight,
+                    }),
                 }
             }
         }
@@ -264,7 +301,10 @@ pub fn apply(base: &TrainConfig, setting: &BTreeMap<String, f64>, seed: u64) -> 
 }
 
 fn setting_label(s: &BTreeMap<String, f64>) -> String {
-    s.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" ")
+    s.iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Run the whole sweep against `addresses`; `progress` draws a bar over the runs.
@@ -275,14 +315,33 @@ pub async fn sweep(
     progress: bool,
 ) -> Result<SweepSummary, TrainError> {
     let started = Instant::now();
-    let time = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0);
-    let dir = base.run.runs_dir.join(format!("sweep__{}__{time}", sweep.name));
-    std::fs::create_dir_all(&dir).map_err(|source| TrainError::Io { path: dir.clone(), source })?;
-    let jobs: Vec<(BTreeMap<String, f64>, u64)> =
-        sweep.settings().into_iter().flat_map(|s| sweep.seeds.iter().map(move |&seed| (s.clone(), seed))).collect();
-    let bar = if progress { indicatif::ProgressBar::new(jobs.len() as u64) } else { indicatif::ProgressBar::hidden() };
+    let time = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis())
+        .unwrap_or(0);
+    let dir = base
+        .run
+        .runs_dir
+        .join(format!("sweep__{}__{time}", sweep.name));
+    std::fs::create_dir_all(&dir).map_err(|source| TrainError::Io {
+        path: dir.clone(),
+        source,
+    })?;
+    let jobs: Vec<(BTreeMap<String, f64>, u64)> = sweep
+        .settings()
+        .into_iter()
+        .flat_map(|s| sweep.seeds.iter().map(move |&seed| (s.clone(), seed)))
+        .collect();
+    let bar = if progress {
+        indicatif::ProgressBar::new(jobs.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:30} run {pos}/{len} [{elapsed_precise}<{eta}] {msg}").expect("valid template"),
+        indicatif::ProgressStyle::with_template(
+            "{bar:30} run {pos}/{len} [{elapsed_precise}<{eta}] {msg}",
+        )
+        .expect("valid template"),
     );
     let runs = futures::stream::iter(jobs.into_iter().enumerate().map(|(i, (setting, seed))| {
         let (bar, dir) = (bar.clone(), dir.clone());
@@ -293,10 +352,26 @@ pub async fn sweep(
             if let Some(n) = sweep.total_env_steps {
                 cfg.run.total_env_steps = n;
             }
-            let s: TrainSummary = train(cfg, addresses, TrainOptions { resume: None, progress: false }).await?;
-            let line = format!("  {:<40} seed {seed}: eval return {:?}", setting_label(&setting), s.eval_return);
+            let s: TrainSummary = train(
+                cfg,
+                addresses,
+                TrainOptions {
+                    resume: None,
+                    progress: false,
+                },
+            )
+            .await?;
+            let line = format!(
+                "  {:<40} seed {seed}: eval return {:?}",
+                setting_label(&setting),
+                s.eval_return
+            );
             // A bar drawn to a non-terminal is hidden and would swallow println.
-            if bar.is_hidden() { tracing::info!("{}", line.trim()) } else { bar.println(line) }
+            if bar.is_hidden() {
+                tracing::info!("{}", line.trim())
+            } else {
+                bar.println(line)
+            }
             bar.inc(1);
             Ok::<_, TrainError>((i, setting, seed, s))
         }
@@ -306,7 +381,10 @@ pub async fn sweep(
     .await;
     let mut finished = runs.into_iter().collect::<Result<Vec<_>, _>>()?;
     finished.sort_by_key(|(i, ..)| *i);
-    let objectives = finished.first().map(|(.., s)| s.objectives.clone()).unwrap_or_default();
+    let objectives = finished
+        .first()
+        .map(|(.., s)| s.objectives.clone())
+        .unwrap_or_default();
     let mut points: Vec<SweepPoint> = finished
         .into_iter()
         .map(|(_, setting, seed, s)| SweepPoint {
@@ -321,7 +399,13 @@ pub async fn sweep(
     bar.finish_and_clear();
     let reference: Vec<f64> = objectives
         .iter()
-        .map(|n| sweep.reference_point.get(n).copied().ok_or_else(|| invalid("reference_point", "a value per objective", n)))
+        .map(|n| {
+            sweep
+                .reference_point
+                .get(n)
+                .copied()
+                .ok_or_else(|| invalid("reference_point", "a value per objective", n))
+        })
         .collect::<Result<_, _>>()?;
     let returns: Vec<Vec<f64>> = points.iter().map(|p| p.eval_return.clone()).collect();
     for i in non_dominated(&returns) {
@@ -358,8 +442,14 @@ mod tests {
         let s: SweepConfig = toml::from_str(text).unwrap();
         let settings = s.settings();
         assert_eq!(settings.len(), 2 * 3 + 1);
-        assert_eq!(settings[0], BTreeMap::from([("time".into(), 0.01), ("treasure".into(), 0.1)]));
-        assert_eq!(settings[6], BTreeMap::from([("time".into(), 0.05), ("treasure".into(), 0.5)]));
+        assert_eq!(
+            settings[0],
+            BTreeMap::from([("time".into(), 0.01), ("treasure".into(), 0.1)])
+        );
+        assert_eq!(
+            settings[6],
+            BTreeMap::from([("time".into(), 0.05), ("treasure".into(), 0.5)])
+        );
     }
 
     #[test]

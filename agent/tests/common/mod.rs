@@ -1,9 +1,10 @@
 //! Small learners and random snippet batches shared by the integration tests.
 #![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
 
-use agent::algo::{LearnerDims, Learner, SnippetBatch};
+use agent::algo::{Learner, LearnerDims, SnippetBatch};
 use agent::config::{
-    Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
+    Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource,
+    ObjectiveWeight,
 };
 use agent::nets::{ActionKind, ObsLeaf};
 use tch::{Device, Kind, Tensor};
@@ -122,10 +123,17 @@ pub fn movmpo_mocap_learner() -> Learner {
     cfg.algorithm = Algorithm::MoVmpo;
     cfg.objectives = ["task", "effort"]
         .iter()
-        .map(|name| ObjectiveConfig { name: (*name).into(), epsilon: 0.1, source: ObjectiveSource::Learned })
+        .map(|name| ObjectiveConfig {
+            name: (*name).into(),
+            epsilon: 0.1,
+            source: ObjectiveSource::Learned,
+        })
         .collect();
-    cfg.network.architecture =
-        Architecture::Mocap { encoder_layers: vec![8], latent_dim: 3, reference_match: "reference".into() };
+    cfg.network.architecture = Architecture::Mocap {
+        encoder_layers: vec![8],
+        latent_dim: 3,
+        reference_match: "reference".into(),
+    };
     cfg.network.critic_shared_layers = 2;
     cfg.vmpo.unroll_length = 4;
     cfg.vmpo.batch_size = 5;
@@ -135,8 +143,14 @@ pub fn movmpo_mocap_learner() -> Learner {
         action: ActionKind::Continuous { dim: 2 },
         reward_names: vec!["task".into(), "effort".into()],
         obs_leaves: vec![
-            ObsLeaf { name: "walker/joints".into(), dim: 1 },
-            ObsLeaf { name: "walker/reference_pos".into(), dim: 2 },
+            ObsLeaf {
+                name: "walker/joints".into(),
+                dim: 1,
+            },
+            ObsLeaf {
+                name: "walker/reference_pos".into(),
+                dim: 2,
+            },
         ],
     };
     Learner::new(cfg, dims, Device::Cpu).unwrap()

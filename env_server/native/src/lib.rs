@@ -29,8 +29,8 @@ use pyo3::prelude::*;
 use tokio::sync::oneshot;
 use tonic::transport::server::TcpIncoming;
 
-pub use service::Reply;
 use service::PyEnvService;
+pub use service::Reply;
 
 /// gRPC service name, as registered with the health service.
 const SERVICE_NAME: &str = "mo_env.v1.EnvService";
@@ -49,7 +49,13 @@ impl NativeFront {
     /// `busy_poll_us` > 0: a StepStream waits that long for its next request without sleeping.
     #[new]
     #[pyo3(signature = (service, host, port, max_message_bytes, busy_poll_us = 0))]
-    fn new(service: Py<PyAny>, host: &str, port: u16, max_message_bytes: usize, busy_poll_us: u64) -> PyResult<Self> {
+    fn new(
+        service: Py<PyAny>,
+        host: &str,
+        port: u16,
+        max_message_bytes: usize,
+        busy_poll_us: u64,
+    ) -> PyResult<Self> {
         let busy_poll = (busy_poll_us > 0).then(|| Duration::from_micros(busy_poll_us));
         let listener = StdTcpListener::bind((host, port))
             .map_err(|e| PyOSError::new_err(format!("could not bind {host}:{port}: {e}")))?;
@@ -61,12 +67,29 @@ impl NativeFront {
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
-            .map_err(|e| PyRuntimeError::new_err(format!("could not start the tokio runtime: {e}")))?;
+            .map_err(|e| {
+                PyRuntimeError::new_err(format!("could not start the tokio runtime: {e}"))
+            })?;
         let thread = std::thread::Builder::new()
             .name("env_server_native".into())
-            .spawn(move || serve(runtime, listener, service, max_message_bytes, busy_poll, stop_rx))
-            .map_err(|e| PyRuntimeError::new_err(format!("could not start the front thread: {e}")))?;
-        Ok(Self { port, stop_tx: Mutex::new(Some(stop_tx)), thread: Mutex::new(Some(thread)) })
+            .spawn(move || {
+                serve(
+                    runtime,
+                    listener,
+                    service,
+                    max_message_bytes,
+                    busy_poll,
+                    stop_rx,
+                )
+            })
+            .map_err(|e| {
+                PyRuntimeError::new_err(format!("could not start the front thread: {e}"))
+            })?;
+        Ok(Self {
+            port,
+            stop_tx: Mutex::new(Some(stop_tx)),
+            thread: Mutex::new(Some(thread)),
+        })
     }
 
     /// The bound port.
@@ -121,7 +144,9 @@ fn serve(
         let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
         let (health, health_service) = tonic_health::server::health_reporter();
         for name in ["", SERVICE_NAME] {
-            health.set_service_status(name, tonic_health::ServingStatus::Serving).await;
+            health
+                .set_service_status(name, tonic_health::ServingStatus::Serving)
+                .await;
         }
         let env_service = EnvServiceServer::new(PyEnvService::new(service, busy_poll))
             .max_decoding_message_size(max_message_bytes)
@@ -130,12 +155,16 @@ fn serve(
         let shutdown = async move {
             let grace = stop_rx.await.unwrap_or(Duration::ZERO);
             for name in ["", SERVICE_NAME] {
-                health.set_service_status(name, tonic_health::ServingStatus::NotServing).await;
+                health
+                    .set_service_status(name, tonic_health::ServingStatus::NotServing)
+                    .await;
             }
             let _ = grace_tx.send(grace);
         };
         let server = tonic::transport::Server::builder()
-            .layer(tower::util::MapResponseLayer::new(status::oversize_response as OversizeRewrite))
+            .layer(tower::util::MapResponseLayer::new(
+                status::oversize_response as OversizeRewrite,
+            ))
             .add_service(health_service)
             .add_service(env_service)
             .serve_with_incoming_shutdown(incoming, shutdown);

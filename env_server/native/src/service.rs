@@ -13,8 +13,9 @@ use bytes::Bytes;
 use futures::{FutureExt, Stream, StreamExt};
 use mo_env_proto::v1::env_service_server::EnvService;
 use mo_env_proto::v1::{
-    CloseRequest, CloseResponse, GetVersionRequest, GetVersionResponse, ListEnvsRequest, ListEnvsResponse,
-    MakeRequest, MakeResponse, ResetRequest, ResetResponse, StepRequest, StepResponse,
+    CloseRequest, CloseResponse, GetVersionRequest, GetVersionResponse, ListEnvsRequest,
+    ListEnvsResponse, MakeRequest, MakeResponse, ResetRequest, ResetResponse, StepRequest,
+    StepResponse,
 };
 use prost::Message;
 use pyo3::prelude::*;
@@ -75,7 +76,10 @@ pub(crate) struct PyEnvService {
 
 impl PyEnvService {
     pub(crate) fn new(service: Py<PyAny>, busy_poll: Option<Duration>) -> Self {
-        Self { service: Arc::new(service), busy_poll }
+        Self {
+            service: Arc::new(service),
+            busy_poll,
+        }
     }
 
     /// Run `method` on the Python asyncio loop and wait for its reply.
@@ -87,36 +91,62 @@ impl PyEnvService {
         let data = request.into_inner().encode_to_vec();
         let (tx, rx) = oneshot::channel();
         let future = Python::attach(|py| {
-            let reply = Py::new(py, Reply { tx: Mutex::new(Some(tx)) })?;
+            let reply = Py::new(
+                py,
+                Reply {
+                    tx: Mutex::new(Some(tx)),
+                },
+            )?;
             let args = (method, PyBytes::new(py, &data), reply);
-            self.service.bind(py).call_method1("submit", args).map(Bound::unbind)
+            self.service
+                .bind(py)
+                .call_method1("submit", args)
+                .map(Bound::unbind)
         })
         .map_err(|err| Python::attach(|py| status::from_pyerr(py, &self.service, err)))?;
         let mut pending = CancelOnDrop(Some(future));
         let outcome = rx.await;
         pending.0 = None;
-        let response = outcome.map_err(|_| Status::internal(format!("env_server bug: {method} ended without a reply")))??;
-        Resp::decode(response)
-            .map(Response::new)
-            .map_err(|e| Status::internal(format!("env_server bug: {method} replied with an undecodable message: {e}")))
+        let response = outcome.map_err(|_| {
+            Status::internal(format!("env_server bug: {method} ended without a reply"))
+        })??;
+        Resp::decode(response).map(Response::new).map_err(|e| {
+            Status::internal(format!(
+                "env_server bug: {method} replied with an undecodable message: {e}"
+            ))
+        })
     }
 }
 
 /// One Step through `target` (the service, or a stream's step state), inline.
-fn step_with(service: &Py<PyAny>, target: &Py<PyAny>, request: StepRequest) -> Result<StepResponse, Status> {
+fn step_with(
+    service: &Py<PyAny>,
+    target: &Py<PyAny>,
+    request: StepRequest,
+) -> Result<StepResponse, Status> {
     let action = request.action.unwrap_or_default();
     let encoded = Python::attach(|py| {
-        let args = (request.session_id, action.dtype, action.shape, PyBytes::new(py, &action.data));
+        let args = (
+            request.session_id,
+            action.dtype,
+            action.shape,
+            PyBytes::new(py, &action.data),
+        );
         match target.bind(py).call_method1("step", args) {
             Ok(response) => match response.cast::<PyBytes>() {
                 Ok(bytes) => Ok(Bytes::copy_from_slice(bytes.as_bytes())),
-                Err(_) => Err(Status::internal("env_server bug: step returned something other than bytes")),
+                Err(_) => Err(Status::internal(
+                    "env_server bug: step returned something other than bytes",
+                )),
             },
             Err(err) => Err(status::from_pyerr(py, service, err)),
         }
     })?;
-    StepResponse::decode(encoded)
-        .map_err(|e| Status::internal(format!("env_server bug: step returned an undecodable StepResponse: {e}")))
+    StepResponse::decode(encoded).map_err(|e| {
+        Status::internal(format!(
+            "env_server bug: step returned an undecodable StepResponse: {e}"
+        ))
+    })
 }
 
 /// A StepStream's Python state; `finish(aborted)` runs exactly once, also when the
@@ -206,11 +236,17 @@ type StepResponses = Pin<Box<dyn Stream<Item = Result<StepResponse, Status>> + S
 
 #[tonic::async_trait]
 impl EnvService for PyEnvService {
-    async fn get_version(&self, request: Request<GetVersionRequest>) -> Result<Response<GetVersionResponse>, Status> {
+    async fn get_version(
+        &self,
+        request: Request<GetVersionRequest>,
+    ) -> Result<Response<GetVersionResponse>, Status> {
         self.unary("GetVersion", request).await
     }
 
-    async fn list_envs(&self, request: Request<ListEnvsRequest>) -> Result<Response<ListEnvsResponse>, Status> {
+    async fn list_envs(
+        &self,
+        request: Request<ListEnvsRequest>,
+    ) -> Result<Response<ListEnvsResponse>, Status> {
         self.unary("ListEnvs", request).await
     }
 
@@ -218,7 +254,10 @@ impl EnvService for PyEnvService {
         self.unary("Make", request).await
     }
 
-    async fn reset(&self, request: Request<ResetRequest>) -> Result<Response<ResetResponse>, Status> {
+    async fn reset(
+        &self,
+        request: Request<ResetRequest>,
+    ) -> Result<Response<ResetResponse>, Status> {
         self.unary("Reset", request).await
     }
 
@@ -241,7 +280,10 @@ impl EnvService for PyEnvService {
         })?;
         let state = StreamState {
             inbound: request.into_inner(),
-            steps: StreamSteps { service: Arc::clone(&self.service), steps: Some(steps) },
+            steps: StreamSteps {
+                service: Arc::clone(&self.service),
+                steps: Some(steps),
+            },
             busy_poll: self.busy_poll,
         };
         let responses = futures::stream::unfold(state, |mut state| async move {
@@ -251,7 +293,10 @@ impl EnvService for PyEnvService {
         Ok(Response::new(Box::pin(responses)))
     }
 
-    async fn close(&self, request: Request<CloseRequest>) -> Result<Response<CloseResponse>, Status> {
+    async fn close(
+        &self,
+        request: Request<CloseRequest>,
+    ) -> Result<Response<CloseResponse>, Status> {
         self.unary("Close", request).await
     }
 }

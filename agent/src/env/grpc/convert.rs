@@ -9,7 +9,11 @@ use crate::error::EnvError;
 use crate::spec::{AutoresetMode, BoxSpace, DType, DiscreteSpace, EnvSpec, ObjectiveSpec, Space};
 
 pub(super) fn missing(field: &str) -> EnvError {
-    EnvError::Protocol { field: field.into(), expected: "a value".into(), got: "nothing".into() }
+    EnvError::Protocol {
+        field: field.into(),
+        expected: "a value".into(),
+        got: "nothing".into(),
+    }
 }
 
 pub(super) fn dtype_from_proto(raw: i32, field: &str) -> Result<DType, EnvError> {
@@ -21,7 +25,11 @@ pub(super) fn dtype_from_proto(raw: i32, field: &str) -> Result<DType, EnvError>
         Ok(pb::DType::DtypeUint8) => DType::Uint8,
         Ok(pb::DType::DtypeBool) => DType::Bool,
         Ok(pb::DType::DtypeUnspecified) | Err(_) => {
-            return Err(EnvError::Protocol { field: field.into(), expected: "a known dtype".into(), got: raw.to_string() });
+            return Err(EnvError::Protocol {
+                field: field.into(),
+                expected: "a known dtype".into(),
+                got: raw.to_string(),
+            });
         }
     })
 }
@@ -61,7 +69,11 @@ pub(super) fn tensor_from_proto(t: pb::Tensor, field: &str) -> Result<HostTensor
             got: format!("{} bytes", t.data.len()),
         });
     }
-    Ok(HostTensor { dtype, shape, data: t.data.to_vec() })
+    Ok(HostTensor {
+        dtype,
+        shape,
+        data: t.data.to_vec(),
+    })
 }
 
 pub(super) fn tensor_to_proto(t: &HostTensor) -> pb::Tensor {
@@ -78,17 +90,31 @@ pub(super) fn named_from_proto(leaves: Vec<pb::NamedTensor>) -> Result<Vec<Named
         .map(|l| {
             let field = format!("tensor '{}'", l.name);
             let tensor = tensor_from_proto(l.tensor.ok_or_else(|| missing(&field))?, &field)?;
-            Ok(NamedTensor { name: l.name, tensor })
+            Ok(NamedTensor {
+                name: l.name,
+                tensor,
+            })
         })
         .collect()
 }
 
-pub(super) fn observation_from_proto(leaves: Vec<pb::NamedTensor>) -> Result<Observation, EnvError> {
-    Ok(Observation { leaves: named_from_proto(leaves)? })
+pub(super) fn observation_from_proto(
+    leaves: Vec<pb::NamedTensor>,
+) -> Result<Observation, EnvError> {
+    Ok(Observation {
+        leaves: named_from_proto(leaves)?,
+    })
 }
 
-pub(super) fn step_from_proto(r: pb::StepResponse, num_envs: usize, k: usize) -> Result<StepResult, EnvError> {
-    let reward = tensor_from_proto(r.reward.ok_or_else(|| missing("StepResponse.reward"))?, "reward")?;
+pub(super) fn step_from_proto(
+    r: pb::StepResponse,
+    num_envs: usize,
+    k: usize,
+) -> Result<StepResult, EnvError> {
+    let reward = tensor_from_proto(
+        r.reward.ok_or_else(|| missing("StepResponse.reward"))?,
+        "reward",
+    )?;
     if reward.dtype != DType::Float32 || reward.shape != [num_envs, k] {
         return Err(EnvError::Protocol {
             field: "StepResponse.reward".into(),
@@ -129,7 +155,12 @@ pub(super) fn step_from_proto(r: pb::StepResponse, num_envs: usize, k: usize) ->
 }
 
 pub(super) fn objective_from_proto(o: pb::ObjectiveSpec) -> ObjectiveSpec {
-    ObjectiveSpec { name: o.name, description: o.description, min: o.min, max: o.max }
+    ObjectiveSpec {
+        name: o.name,
+        description: o.description,
+        min: o.min,
+        max: o.max,
+    }
 }
 
 pub(super) fn space_from_proto(space: pb::Space, field: &str) -> Result<Space, EnvError> {
@@ -153,7 +184,10 @@ pub(super) fn space_from_proto(space: pb::Space, field: &str) -> Result<Space, E
                 shape,
             }))
         }
-        Some(pb::space::Kind::Discrete(d)) => Ok(Space::Discrete(DiscreteSpace { n: d.n, start: d.start })),
+        Some(pb::space::Kind::Discrete(d)) => Ok(Space::Discrete(DiscreteSpace {
+            n: d.n,
+            start: d.start,
+        })),
         Some(pb::space::Kind::Dict(d)) => d
             .entries
             .into_iter()
@@ -189,10 +223,15 @@ pub(super) fn spec_from_proto(s: pb::EnvSpec) -> Result<EnvSpec, EnvError> {
         env_id: s.env_id,
         num_envs: usize::try_from(s.num_envs).map_err(|_| missing("EnvSpec.num_envs"))?,
         observation_space: space_from_proto(
-            s.observation_space.ok_or_else(|| missing("EnvSpec.observation_space"))?,
+            s.observation_space
+                .ok_or_else(|| missing("EnvSpec.observation_space"))?,
             "observation_space",
         )?,
-        action_space: space_from_proto(s.action_space.ok_or_else(|| missing("EnvSpec.action_space"))?, "action_space")?,
+        action_space: space_from_proto(
+            s.action_space
+                .ok_or_else(|| missing("EnvSpec.action_space"))?,
+            "action_space",
+        )?,
         objectives: s.objectives.into_iter().map(objective_from_proto).collect(),
         max_episode_steps: u64::try_from(s.max_episode_steps).ok().filter(|&n| n > 0),
         autoreset_mode: autoreset_from_proto(s.autoreset_mode),
@@ -210,7 +249,10 @@ mod tests {
         let t = HostTensor::from_f32(vec![2, 3], &[1.0, -2.0, 3.5, 0.0, f32::MAX, -0.25]);
         let back = tensor_from_proto(tensor_to_proto(&t), "t").unwrap();
         assert_eq!(back, t);
-        assert_eq!(back.to_f32_vec(), vec![1.0, -2.0, 3.5, 0.0, f32::MAX, -0.25]);
+        assert_eq!(
+            back.to_f32_vec(),
+            vec![1.0, -2.0, 3.5, 0.0, f32::MAX, -0.25]
+        );
     }
 
     #[test]
@@ -232,7 +274,9 @@ mod tests {
                 high: vec![1.0, 2.0, 3.0],
             })),
         };
-        let Space::Box(b) = space_from_proto(space, "action_space").unwrap() else { panic!("not a box") };
+        let Space::Box(b) = space_from_proto(space, "action_space").unwrap() else {
+            panic!("not a box")
+        };
         assert_eq!(b.low, vec![-1.0; 3]);
         assert_eq!(b.high, vec![1.0, 2.0, 3.0]);
     }

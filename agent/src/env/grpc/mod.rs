@@ -17,8 +17,8 @@ use tonic::transport::{Channel, Endpoint};
 mod convert;
 
 use convert::{
-    autoreset_to_proto, missing, objective_from_proto, observation_from_proto, named_from_proto, spec_from_proto,
-    step_from_proto, tensor_to_proto,
+    autoreset_to_proto, missing, named_from_proto, objective_from_proto, observation_from_proto,
+    spec_from_proto, step_from_proto, tensor_to_proto,
 };
 
 use super::{Env, HostTensor, MakeOptions, ResetResult, StepResult};
@@ -87,8 +87,16 @@ fn is_unavailable(status: &tonic::Status) -> bool {
 }
 
 fn status_error(call: &'static str, status: &tonic::Status) -> EnvError {
-    let code = if is_unavailable(status) { StatusKind::Unavailable } else { status_kind(status.code()) };
-    EnvError::Status { call, code, message: status.message().to_string() }
+    let code = if is_unavailable(status) {
+        StatusKind::Unavailable
+    } else {
+        status_kind(status.code())
+    };
+    EnvError::Status {
+        call,
+        code,
+        message: status.message().to_string(),
+    }
 }
 
 /// A connection to one env server.
@@ -107,8 +115,15 @@ impl EnvClient {
 
     /// Connect, retrying refused connections per `retry`.
     pub async fn connect_with(address: &str, retry: RetryPolicy) -> Result<Self, EnvError> {
-        let uri = if address.contains("://") { address.to_string() } else { format!("http://{address}") };
-        let connect_error = |reason: String| EnvError::Connect { address: address.to_string(), reason };
+        let uri = if address.contains("://") {
+            address.to_string()
+        } else {
+            format!("http://{address}")
+        };
+        let connect_error = |reason: String| EnvError::Connect {
+            address: address.to_string(),
+            reason,
+        };
         let endpoint = Endpoint::from_shared(uri)
             .map_err(|e| connect_error(format!("invalid address: {e}")))?
             .tcp_nodelay(true)
@@ -122,13 +137,22 @@ impl EnvClient {
                     tokio::time::sleep(retry.backoff(attempt)).await;
                     attempt += 1;
                 }
-                Err(e) => return Err(connect_error(format!("{e} (after {} attempts)", attempt + 1))),
+                Err(e) => {
+                    return Err(connect_error(format!(
+                        "{e} (after {} attempts)",
+                        attempt + 1
+                    )));
+                }
             }
         };
         let client = EnvServiceClient::new(channel)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        Ok(Self { client, address: address.to_string(), retry })
+        Ok(Self {
+            client,
+            address: address.to_string(),
+            retry,
+        })
     }
 
     /// The address this client talks to.
@@ -137,7 +161,12 @@ impl EnvClient {
     }
 
     /// Run one unary call, retrying only UNAVAILABLE with backoff.
-    async fn call<Req, Resp, F, Fut>(&self, name: &'static str, request: Req, mut f: F) -> Result<Resp, EnvError>
+    async fn call<Req, Resp, F, Fut>(
+        &self,
+        name: &'static str,
+        request: Req,
+        mut f: F,
+    ) -> Result<Resp, EnvError>
     where
         Req: Clone,
         F: FnMut(EnvServiceClient<Channel>, Req) -> Fut,
@@ -148,7 +177,12 @@ impl EnvClient {
             match f(self.client.clone(), request.clone()).await {
                 Ok(response) => return Ok(response.into_inner()),
                 Err(status) if is_unavailable(&status) && attempt + 1 < self.retry.max_attempts => {
-                    tracing::warn!(call = name, attempt, message = status.message(), "server unavailable; retrying");
+                    tracing::warn!(
+                        call = name,
+                        attempt,
+                        message = status.message(),
+                        "server unavailable; retrying"
+                    );
                     tokio::time::sleep(self.retry.backoff(attempt)).await;
                     attempt += 1;
                 }
@@ -159,7 +193,13 @@ impl EnvClient {
 
     /// Protocol version and capabilities.
     pub async fn version(&self) -> Result<ServerVersion, EnvError> {
-        let r = self.call("GetVersion", pb::GetVersionRequest {}, |mut c, r| async move { c.get_version(r).await }).await?;
+        let r = self
+            .call(
+                "GetVersion",
+                pb::GetVersionRequest {},
+                |mut c, r| async move { c.get_version(r).await },
+            )
+            .await?;
         Ok(ServerVersion {
             protocol_version: r.protocol_version,
             server_version: r.server_version,
@@ -170,7 +210,11 @@ impl EnvClient {
 
     /// Every env the server ships, with its objectives.
     pub async fn list_envs(&self) -> Result<Vec<EnvInfo>, EnvError> {
-        let r = self.call("ListEnvs", pb::ListEnvsRequest {}, |mut c, r| async move { c.list_envs(r).await }).await?;
+        let r = self
+            .call("ListEnvs", pb::ListEnvsRequest {}, |mut c, r| async move {
+                c.list_envs(r).await
+            })
+            .await?;
         Ok(r.envs
             .into_iter()
             .map(|e| EnvInfo {
@@ -205,9 +249,17 @@ impl EnvClient {
                 got: options.num_workers.to_string(),
             })?,
         };
-        let r = self.call("Make", request, |mut c, r| async move { c.make(r).await }).await?;
+        let r = self
+            .call("Make", request, |mut c, r| async move { c.make(r).await })
+            .await?;
         let spec = spec_from_proto(r.spec.ok_or_else(|| missing("MakeResponse.spec"))?)?;
-        Ok(RemoteEnv { client: self.clone(), session_id: r.session_id, spec, lease_seconds: r.lease_seconds, stream: StreamState::Unary })
+        Ok(RemoteEnv {
+            client: self.clone(),
+            session_id: r.session_id,
+            spec,
+            lease_seconds: r.lease_seconds,
+            stream: StreamState::Unary,
+        })
     }
 }
 
@@ -223,14 +275,20 @@ pub struct RemoteEnv {
 
 /// How steps travel: unary calls, or one bidirectional stream.
 #[derive(Debug)]
-#[allow(clippy::large_enum_variant, reason = "one per session, replaced rarely; boxing buys nothing")]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per session, replaced rarely; boxing buys nothing"
+)]
 enum StreamState {
     /// One unary `Step` call per step.
     Unary,
     /// Streaming chosen; the call opens with the next step.
     Idle,
     /// An open `StepStream` call.
-    Open { requests: mpsc::Sender<pb::StepRequest>, responses: tonic::Streaming<pb::StepResponse> },
+    Open {
+        requests: mpsc::Sender<pb::StepRequest>,
+        responses: tonic::Streaming<pb::StepResponse>,
+    },
 }
 
 impl RemoteEnv {
@@ -252,7 +310,10 @@ impl RemoteEnv {
         }
     }
 
-    async fn step_streamed(&mut self, request: pb::StepRequest) -> Result<pb::StepResponse, EnvError> {
+    async fn step_streamed(
+        &mut self,
+        request: pb::StepRequest,
+    ) -> Result<pb::StepResponse, EnvError> {
         let stream_closed = || EnvError::Status {
             call: "StepStream",
             code: StatusKind::Unavailable,
@@ -274,9 +335,14 @@ impl RemoteEnv {
                 .await
                 .map_err(|s| status_error("StepStream", &s))?
                 .into_inner();
-            self.stream = StreamState::Open { requests, responses };
+            self.stream = StreamState::Open {
+                requests,
+                responses,
+            };
         }
-        let StreamState::Open { responses, .. } = &mut self.stream else { unreachable!("opened above") };
+        let StreamState::Open { responses, .. } = &mut self.stream else {
+            unreachable!("opened above")
+        };
         let outcome = responses.message().await;
         match outcome {
             Ok(Some(response)) => Ok(response),
@@ -298,22 +364,37 @@ impl Env for RemoteEnv {
         &self.spec
     }
 
-    async fn reset(&mut self, env_indices: &[usize], seeds: &[u64]) -> Result<ResetResult, EnvError> {
+    async fn reset(
+        &mut self,
+        env_indices: &[usize],
+        seeds: &[u64],
+    ) -> Result<ResetResult, EnvError> {
         let request = pb::ResetRequest {
             session_id: self.session_id.clone(),
             env_indices: env_indices.iter().map(|&i| i as i32).collect(),
             seeds: seeds.to_vec(),
         };
-        let r = self.client.call("Reset", request, |mut c, r| async move { c.reset(r).await }).await?;
-        Ok(ResetResult { observation: observation_from_proto(r.observation)?, info: named_from_proto(r.info)? })
+        let r = self
+            .client
+            .call("Reset", request, |mut c, r| async move { c.reset(r).await })
+            .await?;
+        Ok(ResetResult {
+            observation: observation_from_proto(r.observation)?,
+            info: named_from_proto(r.info)?,
+        })
     }
 
     async fn step(&mut self, action: &HostTensor) -> Result<StepResult, EnvError> {
-        let request = pb::StepRequest { session_id: self.session_id.clone(), action: Some(tensor_to_proto(action)) };
+        let request = pb::StepRequest {
+            session_id: self.session_id.clone(),
+            action: Some(tensor_to_proto(action)),
+        };
         let r = if !matches!(self.stream, StreamState::Unary) {
             self.step_streamed(request).await?
         } else {
-            self.client.call("Step", request, |mut c, r| async move { c.step(r).await }).await?
+            self.client
+                .call("Step", request, |mut c, r| async move { c.step(r).await })
+                .await?
         };
         step_from_proto(r, self.spec.num_envs, self.spec.num_objectives())
     }
@@ -321,8 +402,12 @@ impl Env for RemoteEnv {
     async fn close(self) -> Result<(), EnvError> {
         // Close before the stream (if any) is dropped here: the server also closes a
         // stream's sessions when the stream ends, and Close must not race that.
-        let request = pb::CloseRequest { session_id: self.session_id.clone() };
-        self.client.call("Close", request, |mut c, r| async move { c.close(r).await }).await?;
+        let request = pb::CloseRequest {
+            session_id: self.session_id.clone(),
+        };
+        self.client
+            .call("Close", request, |mut c, r| async move { c.close(r).await })
+            .await?;
         Ok(())
     }
 }
