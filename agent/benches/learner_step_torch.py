@@ -67,7 +67,10 @@ def main():
     target_critic.load_state_dict(critic.state_dict())
     pol_opt = torch.optim.Adam(policy.parameters(), lr=2e-4, eps=1e-8)
     crit_opt = torch.optim.Adam(critic.parameters(), lr=2e-4, eps=1e-8)
-    inv = lambda v: math.log(math.expm1(v))
+
+    def inv(v):
+        return math.log(math.expm1(v))
+
     temp_param = torch.tensor([inv(1.0)] * 2, requires_grad=True)
     alpha_param = torch.tensor([inv(1.0), inv(10.0)], requires_grad=True)
     dual_opt = torch.optim.Adam([temp_param, alpha_param], lr=1e-2)

@@ -24,7 +24,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=0, help="port to bind; 0 = chosen by the OS (default)")
     p.add_argument("--max-sessions", type=int, default=64, help="open sessions allowed at once (default 64)")
     p.add_argument("--max-message-mb", type=float, default=64, help="largest request/response in MiB (default 64)")
-    p.add_argument("--session-lease", type=float, default=120.0, help="seconds before an unused session is closed (default 120)")
+    p.add_argument(
+        "--session-lease", type=float, default=120.0, help="seconds before an unused session is closed (default 120)"
+    )
     p.add_argument(
         "--max-workers",
         type=int,

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import grpc
 import gymnasium
@@ -262,7 +263,7 @@ class RemoteVectorEnv:
         finally:
             self._channel.close()
 
-    def __enter__(self) -> "RemoteVectorEnv":
+    def __enter__(self) -> RemoteVectorEnv:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -23,7 +23,8 @@ import logging
 import multiprocessing
 import multiprocessing.connection
 import os
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
 
 import gymnasium
 
@@ -52,7 +53,7 @@ class TaskInfo:
     info_keys: tuple[str, ...]
 
     @classmethod
-    def of(cls, task: Task) -> "TaskInfo":
+    def of(cls, task: Task) -> TaskInfo:
         return cls(
             type(task).__name__,
             task.observation_space,
@@ -96,7 +97,7 @@ class InstanceFailure(Exception):
         return (InstanceFailure, (self.index, self.what, self.error))
 
     @classmethod
-    def of(cls, index: int, what: str, exc: BaseException) -> "InstanceFailure":
+    def of(cls, index: int, what: str, exc: BaseException) -> InstanceFailure:
         failure = cls(index, what, f"{type(exc).__name__}: {exc}")
         failure.__cause__ = exc
         return failure

@@ -19,7 +19,8 @@ import difflib
 import functools
 import importlib.metadata
 import inspect
-from typing import Any, Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 from env_server.errors import QUOTE_LIMIT, InvalidArgument, NotFound, quote
 from env_server.task import Objective, Task
@@ -88,7 +89,9 @@ def _resolve_dmc(rest: str) -> Callable[..., Task]:
     domain, _, task = rest.partition("-")
     known = [f"{d}-{t}" for d, t in suite.ALL_TASKS]
     if (domain, task) not in suite.ALL_TASKS:
-        raise NotFound(f"env_id: unknown dm_control task {quote('dmc:' + rest)} (expected dmc:<domain>-<task>){_near(rest, known)}")
+        raise NotFound(
+            f"env_id: unknown dm_control task {quote('dmc:' + rest)} (expected dmc:<domain>-<task>){_near(rest, known)}"
+        )
     return functools.partial(DmcTask, domain, task)
 
 

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Any, AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any
 
 import grpc
 from grpc_health.v1 import health, health_pb2, health_pb2_grpc
@@ -116,7 +117,9 @@ class _GrpcAioFront:
 
     def __init__(self, service: EnvService, host: str, port: int, max_message_bytes: int, busy_poll_us: int) -> None:
         if busy_poll_us:
-            raise ValueError(f"busy_poll_us: expected 0 with the grpcio front (only the native front polls), got {busy_poll_us}")
+            raise ValueError(
+                f"busy_poll_us: expected 0 with the grpcio front (only the native front polls), got {busy_poll_us}"
+            )
         self.server = grpc.aio.server(
             options=[
                 ("grpc.max_receive_message_length", max_message_bytes),
@@ -217,8 +220,13 @@ async def serve(
     print(f"LISTENING {_bind_address(host, running.port)}", flush=True)
     log.info(
         "serving %s on %s through the %s front (max sessions %d, max message %d bytes, lease %g s, max workers %d)",
-        SERVICE_NAME, _bind_address(host, running.port), front,
-        max_sessions, max_message_bytes, lease_seconds, max_workers,
+        SERVICE_NAME,
+        _bind_address(host, running.port),
+        front,
+        max_sessions,
+        max_message_bytes,
+        lease_seconds,
+        max_workers,
     )
     reaper = asyncio.create_task(service.reap())
     stop = stop or asyncio.Event()

@@ -21,7 +21,8 @@ import logging
 import sys
 import threading
 import time
-from typing import Any, Protocol, Sequence
+from collections.abc import Sequence
+from typing import Any, Protocol
 
 import env_server
 from env_server import wire
@@ -197,9 +198,7 @@ class EnvService:
         with self._lock:
             self.sessions[session.id] = session
             self._encoders[session.id] = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
-        log.info(
-            "made session %s: %s x%d; %d open", session.id, session.env_id, session.num_envs, len(self.sessions)
-        )
+        log.info("made session %s: %s x%d; %d open", session.id, session.env_id, session.num_envs, len(self.sessions))
         return pb.MakeResponse(session_id=session.id, spec=wire.spec_pb(session), lease_seconds=self.lease_seconds)
 
     def _build(self, env_id: str, num_envs: int, kwargs: dict[str, Any], **options: Any) -> Session:
@@ -240,7 +239,7 @@ class EnvService:
                 self._session(session_id)
             return self._encoders[session_id].encode(session.step(_dtype_name(dtype), shape, data))
 
-    def open_stream(self) -> "StreamSteps":
+    def open_stream(self) -> StreamSteps:
         return StreamSteps(self)
 
 
@@ -291,7 +290,9 @@ def _parse_kwargs(kwargs_json: str) -> dict[str, Any]:
     try:
         kwargs = json.loads(kwargs_json)
     except json.JSONDecodeError as exc:
-        raise InvalidArgument(f"kwargs_json: expected a JSON object, got invalid JSON {quote(kwargs_json)}: {exc}") from exc
+        raise InvalidArgument(
+            f"kwargs_json: expected a JSON object, got invalid JSON {quote(kwargs_json)}: {exc}"
+        ) from exc
     except RecursionError as exc:
         raise InvalidArgument(
             f"kwargs_json: expected a JSON object nested at most about {sys.getrecursionlimit()} deep, got {quote(kwargs_json)}"

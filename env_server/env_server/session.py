@@ -19,7 +19,8 @@ import logging
 import math
 import time
 import uuid
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -217,7 +218,12 @@ class Session:
             )
             log.error(
                 "env %s session %s instance %d: %s raised %s",
-                self.env_id, self.id, failure.index, failure.what, failure.error, exc_info=failure.__cause__,
+                self.env_id,
+                self.id,
+                failure.index,
+                failure.what,
+                failure.error,
+                exc_info=failure.__cause__,
             )
             raise SimulatorError(
                 f"env {self.env_id} session {self.id} instance {failure.index}: {failure.error}"

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -174,8 +175,7 @@ class ActionValidator:
         if self._check_finite and not np.isfinite(actions).all():
             index = tuple(np.argwhere(~np.isfinite(actions))[0])
             raise InvalidArgument(
-                f"action: env {index[0]} element {_fmt_index(index[1:])} is {actions[index]}; "
-                "expected finite values"
+                f"action: env {index[0]} element {_fmt_index(index[1:])} is {actions[index]}; expected finite values"
             )
         if self._check_bounds and not ((actions >= self.low) & (actions <= self.high)).all():
             bad = (actions < self.low) | (actions > self.high)

@@ -7,7 +7,8 @@ buffers, so the host must be little-endian like the wire format.
 from __future__ import annotations
 
 import sys
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -41,7 +42,9 @@ def named(leaves: list[tuple[Any, np.ndarray]]) -> list[pb.NamedTensor]:
 def space_to_pb(spec: dict[str, Any]) -> pb.Space:
     """A spaces.space_to_spec dict as a protobuf Space."""
     if "dict" in spec:
-        return pb.Space(dict=pb.DictSpace(entries=[pb.NamedSpace(name=k, space=space_to_pb(s)) for k, s in spec["dict"]]))
+        return pb.Space(
+            dict=pb.DictSpace(entries=[pb.NamedSpace(name=k, space=space_to_pb(s)) for k, s in spec["dict"]])
+        )
     if "discrete" in spec:
         return pb.Space(discrete=pb.DiscreteSpace(n=spec["discrete"]["n"], start=spec["discrete"]["start"]))
     box = spec["box"]

@@ -13,7 +13,7 @@ import pathlib
 import subprocess
 import sys
 import threading
-from typing import Iterator
+from collections.abc import Iterator
 
 import grpc
 import numpy as np

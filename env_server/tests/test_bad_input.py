@@ -7,11 +7,11 @@ import json
 import grpc
 import numpy as np
 import pytest
-
 from conftest import FRONTS, make, rpc_error, running_server, step
-from env_server.client import to_tensor
+
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
+from env_server.client import to_tensor
 
 
 @pytest.fixture(scope="module")
@@ -100,8 +100,10 @@ def test_unknown_session(stub) -> None:
 def test_closed_session(stub) -> None:
     session_id = make(stub, "dst").session_id
     stub.Close(pb.CloseRequest(session_id=session_id))
-    for call in (lambda: stub.Reset(pb.ResetRequest(session_id=session_id)),
-                 lambda: stub.Close(pb.CloseRequest(session_id=session_id))):
+    for call in (
+        lambda: stub.Reset(pb.ResetRequest(session_id=session_id)),
+        lambda: stub.Close(pb.CloseRequest(session_id=session_id)),
+    ):
         err = rpc_error(call)
         assert err.code() == grpc.StatusCode.NOT_FOUND and session_id in err.details()
 
@@ -176,7 +178,10 @@ def test_seed_outside_32_bits_is_refused_and_the_session_keeps_working(stub, dmc
 def test_make_seed_outside_32_bits(stub) -> None:
     err = rpc_error(make, stub, "dst", 3, seed=2**32 - 2)
     assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
-    assert err.details() == "seed: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got 4294967296"
+    assert (
+        err.details()
+        == "seed: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got 4294967296"
+    )
 
 
 @pytest.mark.parametrize("env_id", ["pendulum", "gym:Pendulum-v1"])
@@ -198,7 +203,11 @@ def test_huge_client_values_are_quoted_by_a_short_prefix(stub, humanoid) -> None
     # real error would be lost behind a RESOURCE_EXHAUSTED.
     cases = [
         (grpc.StatusCode.NOT_FOUND, "env_id: unknown env 'xxxx", lambda: make(stub, "x" * 10**6, 1)),
-        (grpc.StatusCode.NOT_FOUND, "env_id: unknown gymnasium id 'gym:xxxx", lambda: make(stub, "gym:" + "x" * 10**6, 1)),
+        (
+            grpc.StatusCode.NOT_FOUND,
+            "env_id: unknown gymnasium id 'gym:xxxx",
+            lambda: make(stub, "gym:" + "x" * 10**6, 1),
+        ),
         (
             grpc.StatusCode.INVALID_ARGUMENT,
             "env_indices: expected distinct indices, got [0, 0, 0",
@@ -208,7 +217,9 @@ def test_huge_client_values_are_quoted_by_a_short_prefix(stub, humanoid) -> None
             grpc.StatusCode.INVALID_ARGUMENT,
             "action: expected shape [2, 21]",
             lambda: stub.Step(
-                pb.StepRequest(session_id=humanoid, action=pb.Tensor(dtype=pb.DTYPE_FLOAT32, shape=[1] * 100_000, data=b""))
+                pb.StepRequest(
+                    session_id=humanoid, action=pb.Tensor(dtype=pb.DTYPE_FLOAT32, shape=[1] * 100_000, data=b"")
+                )
             ),
         ),
     ]

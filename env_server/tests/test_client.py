@@ -10,9 +10,9 @@ import grpc
 import gymnasium
 import numpy as np
 import pytest
+from conftest import server_env
 from gymnasium.utils.env_checker import check_env
 
-from conftest import server_env
 from env_server.client import NotFoundError, RemoteEnv, RemoteVectorEnv, list_envs
 from env_server.envs import REGISTRY
 

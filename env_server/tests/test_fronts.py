@@ -15,8 +15,8 @@ import time
 import grpc
 import numpy as np
 import pytest
-
 from conftest import FRONTS, make, running_server, server_env
+
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
 from env_server.client import to_tensor
@@ -42,14 +42,20 @@ def test_busy_polling_native_front_steps_exactly_as_grpcio() -> None:
 @pytest.mark.parametrize(
     "args, expected",
     [
-        (["--front", "grpcio", "--busy-poll-us", "5"], "--busy-poll-us: expected 0, or > 0 with the native front; got 5 with the grpcio front"),
+        (
+            ["--front", "grpcio", "--busy-poll-us", "5"],
+            "--busy-poll-us: expected 0, or > 0 with the native front; got 5 with the grpcio front",
+        ),
         (["--busy-poll-us", "-1"], "--busy-poll-us: expected 0, or > 0 with the native front; got -1"),
     ],
 )
 def test_bad_front_flags_exit_with_a_message(args: list[str], expected: str) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "env_server", "--port", "0", *args],
-        capture_output=True, text=True, env=server_env(), timeout=60,
+        capture_output=True,
+        text=True,
+        env=server_env(),
+        timeout=60,
     )
     assert proc.returncode == 2 and expected in proc.stderr, proc.stderr
 
@@ -58,7 +64,10 @@ def test_bad_front_flags_exit_with_a_message(args: list[str], expected: str) -> 
 def test_sigterm_with_a_stream_still_open_stops_after_the_grace(front: str) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "env_server", "--port", "0", "--front", front],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=server_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=server_env(),
     )
     address = proc.stdout.readline().split()[1]
     with grpc.insecure_channel(address) as channel:

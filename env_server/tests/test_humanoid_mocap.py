@@ -30,7 +30,10 @@ def test_spaces_and_objectives(env: HumanoidMocap) -> None:
     assert env.action_space.shape == (56,)
     assert env.observation_space.shape == (sum(s.stop - s.start for s in env.obs_slices.values()),)
     # Reference frames for the next 5 steps are observed.
-    assert env.obs_slices["walker/reference_rel_joints"].stop - env.obs_slices["walker/reference_rel_joints"].start == 5 * 56
+    assert (
+        env.obs_slices["walker/reference_rel_joints"].stop - env.obs_slices["walker/reference_rel_joints"].start
+        == 5 * 56
+    )
     assert [c[1] for c in CHANNELS] == [o.name for o in env.objectives]
 
 

@@ -10,10 +10,10 @@ import time
 
 import grpc
 import numpy as np
+from conftest import make, rpc_error, running_server, server_env
 from grpc_health.v1 import health_pb2, health_pb2_grpc
 
 import env_server
-from conftest import make, rpc_error, running_server, server_env
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
 from env_server.client import to_tensor
@@ -43,7 +43,10 @@ def test_killed_client_session_expires_with_lease() -> None:
     with running_server("--max-sessions", "1", "--session-lease", "2") as addr, grpc.insecure_channel(addr) as ch:
         stub = env_pb2_grpc.EnvServiceStub(ch)
         client = subprocess.Popen(
-            [sys.executable, "-c", CLIENT, addr], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            [sys.executable, "-c", CLIENT, addr],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
             env=server_env(),
         )
         assert client.stdout.readline().startswith("MADE")
@@ -116,8 +119,15 @@ def test_step_stream_end_closes_sessions_but_errors_do_not(stub) -> None:
 def test_version_and_health(address: str, stub) -> None:
     version = stub.GetVersion(pb.GetVersionRequest())
     assert version.protocol_version == "1.0.0" and version.server_version == env_server.__version__
-    for flag in ("step_stream", "autoreset.same_step", "autoreset.next_step", "autoreset.disabled",
-                 "dict_observations", "info_keys", "episode_returns"):
+    for flag in (
+        "step_stream",
+        "autoreset.same_step",
+        "autoreset.next_step",
+        "autoreset.disabled",
+        "dict_observations",
+        "info_keys",
+        "episode_returns",
+    ):
         assert flag in version.capabilities
     assert version.max_message_bytes == 64 * 1024 * 1024
     with grpc.insecure_channel(address) as ch:
@@ -147,8 +157,11 @@ def test_info_keys_reported(stub) -> None:
 
 def test_sigterm_shuts_down_cleanly() -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "env_server", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, env=server_env(),
+        [sys.executable, "-m", "env_server", "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=server_env(),
     )
     line = proc.stdout.readline()
     assert line.startswith("LISTENING 127.0.0.1:") and int(line.strip().rsplit(":", 1)[1]) > 0

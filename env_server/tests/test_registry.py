@@ -9,14 +9,14 @@ import sys
 import textwrap
 
 import pytest
-
 from conftest import server_env
+
 from env_server.envs import REGISTRY
 from env_server.errors import InvalidArgument, NotFound
 from env_server.registry import Registry, RegistryError, construct
 
 PLUGIN = textwrap.dedent(
-    '''
+    """
     import gymnasium, numpy as np
     from env_server.task import Objective, StepOutcome, Task
 
@@ -37,7 +37,7 @@ PLUGIN = textwrap.dedent(
         def step(self, action):
             heads = float(self.rng.random() < self.bias)
             return StepOutcome(np.array([heads], np.float32), np.array([heads, 1 - heads], np.float32), True, False)
-    '''
+    """
 )
 
 

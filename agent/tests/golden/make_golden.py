@@ -31,12 +31,14 @@ def write(name, payload):
 
 # ---------------------------------------------------------------- E-step, sampled
 # q[j, i, k]: M=4 samples, B=2 states, K=2 objectives.
-q = torch.tensor([
-    [[1.0, -3.0], [0.5, 10.0]],
-    [[2.0, -1.0], [-0.5, 12.0]],
-    [[0.0, -2.5], [1.5, 11.0]],
-    [[3.0, -0.5], [0.0, 9.0]],
-])
+q = torch.tensor(
+    [
+        [[1.0, -3.0], [0.5, 10.0]],
+        [[2.0, -1.0], [-0.5, 12.0]],
+        [[0.0, -2.5], [1.5, 11.0]],
+        [[3.0, -0.5], [0.0, 9.0]],
+    ]
+)
 eta_values = [0.7, 2.0]
 eps = [0.1, 0.05]
 M, B, K = q.shape
@@ -56,18 +58,28 @@ for k in range(K):
     per_state = [torch.log(torch.mean(torch.exp(q[:, i, k] / eta[k]))) for i in range(B)]
     loss = loss + eta[k] * (eps[k] + sum(per_state) / B)
 loss.backward()
-write("estep_sampled", {
-    "q": t(q), "temperature": eta_values, "temperature_param": param.detach().tolist(), "epsilon": eps,
-    "weights": t(weights), "loss": loss.item(), "grad_param": param.grad.tolist(),
-})
+write(
+    "estep_sampled",
+    {
+        "q": t(q),
+        "temperature": eta_values,
+        "temperature_param": param.detach().tolist(),
+        "epsilon": eps,
+        "weights": t(weights),
+        "loss": loss.item(),
+        "grad_param": param.grad.tolist(),
+    },
+)
 
 # ---------------------------------------------------------------- E-step, categorical
 # q[a, i, k]: A=3 actions, B=2 states, K=2; prior pi_old[i, a].
-qc = torch.tensor([
-    [[1.0, 0.0], [-1.0, 5.0]],
-    [[0.0, 2.0], [2.0, 4.0]],
-    [[-2.0, 1.0], [0.5, 4.5]],
-])
+qc = torch.tensor(
+    [
+        [[1.0, 0.0], [-1.0, 5.0]],
+        [[0.0, 2.0], [2.0, 4.0]],
+        [[-2.0, 1.0], [0.5, 4.5]],
+    ]
+)
 prior = torch.tensor([[0.2, 0.5, 0.3], [0.6, 0.1, 0.3]])
 eta_c = [0.5, 1.5]
 eps_c = [0.2, 0.01]
@@ -85,10 +97,19 @@ for k in range(K):
     per_state = [torch.log(sum(prior[i, a] * torch.exp(qc[a, i, k] / eta_t[k]) for a in range(A))) for i in range(B)]
     loss_c = loss_c + eta_t[k] * (eps_c[k] + sum(per_state) / B)
 loss_c.backward()
-write("estep_categorical", {
-    "q": t(qc), "prior": t(prior), "temperature": eta_c, "temperature_param": param_c.detach().tolist(),
-    "epsilon": eps_c, "weights": t(wc), "loss": loss_c.item(), "grad_param": param_c.grad.tolist(),
-})
+write(
+    "estep_categorical",
+    {
+        "q": t(qc),
+        "prior": t(prior),
+        "temperature": eta_c,
+        "temperature_param": param_c.detach().tolist(),
+        "epsilon": eps_c,
+        "weights": t(wc),
+        "loss": loss_c.item(),
+        "grad_param": param_c.grad.tolist(),
+    },
+)
 
 # ---------------------------------------------------------------- Gaussian M-step
 N = torch.distributions.Normal
@@ -96,11 +117,13 @@ mu_o = torch.tensor([[0.1, -0.2, 0.3], [0.0, 0.5, -0.4]], requires_grad=True)
 sd_o = torch.tensor([[0.5, 0.8, 1.1], [0.3, 0.6, 0.9]], requires_grad=True)
 mu_t = torch.tensor([[0.0, -0.1, 0.5], [0.2, 0.4, -0.5]])
 sd_t = torch.tensor([[0.6, 0.7, 1.0], [0.35, 0.5, 1.0]])
-actions = torch.tensor([
-    [[0.2, -0.3, 0.1], [0.1, 0.6, -0.2]],
-    [[-0.5, 0.0, 1.2], [0.4, 0.3, -0.9]],
-    [[0.0, 0.4, 0.5], [-0.1, 0.5, -0.5]],
-])  # [M=3, B=2, D=3]
+actions = torch.tensor(
+    [
+        [[0.2, -0.3, 0.1], [0.1, 0.6, -0.2]],
+        [[-0.5, 0.0, 1.2], [0.4, 0.3, -0.9]],
+        [[0.0, 0.4, 0.5], [-0.1, 0.5, -0.5]],
+    ]
+)  # [M=3, B=2, D=3]
 w = torch.tensor([[0.5, 1.2], [1.0, 0.3], [0.5, 0.5]])  # [M, B], sums to K=2 per state
 alpha_mu = torch.tensor(1.3, requires_grad=True)
 alpha_sigma = torch.tensor(10.0, requires_grad=True)
@@ -113,15 +136,30 @@ kl_sigma = torch.distributions.kl_divergence(N(mu_t, sd_t), N(mu_t, sd_o)).sum(-
 policy_loss = nll + alpha_mu.detach() * kl_mu + alpha_sigma.detach() * kl_sigma
 alpha_loss = alpha_mu * (beta_mu - kl_mu.detach()) + alpha_sigma * (beta_sigma - kl_sigma.detach())
 (policy_loss + alpha_loss).backward()
-write("mstep_gaussian", {
-    "online_mean": t(mu_o), "online_std": t(sd_o), "target_mean": t(mu_t), "target_std": t(sd_t),
-    "actions": t(actions), "weights": t(w), "alpha_mean": 1.3, "alpha_cov": 10.0,
-    "beta_mean": beta_mu, "beta_cov": beta_sigma,
-    "log_prob_online": t(log_prob_online), "kl_mean": kl_mu.item(), "kl_cov": kl_sigma.item(),
-    "policy_loss": policy_loss.item(), "alpha_loss": alpha_loss.item(),
-    "grad_alpha_mean": alpha_mu.grad.item(), "grad_alpha_cov": alpha_sigma.grad.item(),
-    "grad_online_mean": t(mu_o.grad), "grad_online_std": t(sd_o.grad),
-})
+write(
+    "mstep_gaussian",
+    {
+        "online_mean": t(mu_o),
+        "online_std": t(sd_o),
+        "target_mean": t(mu_t),
+        "target_std": t(sd_t),
+        "actions": t(actions),
+        "weights": t(w),
+        "alpha_mean": 1.3,
+        "alpha_cov": 10.0,
+        "beta_mean": beta_mu,
+        "beta_cov": beta_sigma,
+        "log_prob_online": t(log_prob_online),
+        "kl_mean": kl_mu.item(),
+        "kl_cov": kl_sigma.item(),
+        "policy_loss": policy_loss.item(),
+        "alpha_loss": alpha_loss.item(),
+        "grad_alpha_mean": alpha_mu.grad.item(),
+        "grad_alpha_cov": alpha_sigma.grad.item(),
+        "grad_online_mean": t(mu_o.grad),
+        "grad_online_std": t(sd_o.grad),
+    },
+)
 
 # ---------------------------------------------------------------- categorical M-step
 logits_o = torch.tensor([[0.1, 0.5, -0.3], [1.0, -1.0, 0.0]], requires_grad=True)
@@ -136,35 +174,51 @@ kl_c = torch.distributions.kl_divergence(p_t, p_o).mean()
 policy_c = nll_c + alpha_c.detach() * kl_c
 alpha_loss_c = alpha_c * (beta_c - kl_c.detach())
 (policy_c + alpha_loss_c).backward()
-write("mstep_categorical", {
-    "online_logits": t(logits_o), "target_logits": t(logits_t), "weights": t(wcat), "alpha": 2.0, "beta": beta_c,
-    "policy_loss": policy_c.item(), "alpha_loss": alpha_loss_c.item(), "kl": kl_c.item(),
-    "grad_alpha": alpha_c.grad.item(), "grad_online_logits": t(logits_o.grad),
-})
+write(
+    "mstep_categorical",
+    {
+        "online_logits": t(logits_o),
+        "target_logits": t(logits_t),
+        "weights": t(wcat),
+        "alpha": 2.0,
+        "beta": beta_c,
+        "policy_loss": policy_c.item(),
+        "alpha_loss": alpha_loss_c.item(),
+        "kl": kl_c.item(),
+        "grad_alpha": alpha_c.grad.item(),
+        "grad_online_logits": t(logits_o.grad),
+    },
+)
 
 # ---------------------------------------------------------------- Retrace (C.2)
 # T=4 steps, B=2 snippets, C=2 critics. Snippet 0 terminates after step 1 (d_1 = 0) and
 # continues into a new episode; snippet 1 has no terminal. Several c_z < 1.
 T, Bs, C = 4, 2, 2
 gamma = 0.9
-q_taken = torch.tensor([
-    [[1.0, 0.5], [2.0, -1.0]],
-    [[0.5, 0.0], [1.5, -0.5]],
-    [[3.0, 1.0], [1.0, 0.0]],
-    [[2.5, 0.5], [0.5, 0.2]],
-])
-v_next = torch.tensor([
-    [[0.8, 0.2], [1.8, -0.8]],
-    [[9.0, 9.0], [1.2, -0.2]],  # ignored for snippet 0 (terminal)
-    [[2.0, 0.8], [0.7, 0.1]],
-    [[1.0, 0.3], [0.4, 0.4]],
-])
-rewards = torch.tensor([
-    [[1.0, -0.1], [0.0, -0.2]],
-    [[2.0, -0.3], [1.0, 0.0]],
-    [[0.5, -0.2], [0.5, -0.1]],
-    [[1.0, 0.0], [0.2, -0.4]],
-])
+q_taken = torch.tensor(
+    [
+        [[1.0, 0.5], [2.0, -1.0]],
+        [[0.5, 0.0], [1.5, -0.5]],
+        [[3.0, 1.0], [1.0, 0.0]],
+        [[2.5, 0.5], [0.5, 0.2]],
+    ]
+)
+v_next = torch.tensor(
+    [
+        [[0.8, 0.2], [1.8, -0.8]],
+        [[9.0, 9.0], [1.2, -0.2]],  # ignored for snippet 0 (terminal)
+        [[2.0, 0.8], [0.7, 0.1]],
+        [[1.0, 0.3], [0.4, 0.4]],
+    ]
+)
+rewards = torch.tensor(
+    [
+        [[1.0, -0.1], [0.0, -0.2]],
+        [[2.0, -0.3], [1.0, 0.0]],
+        [[0.5, -0.2], [0.5, -0.1]],
+        [[1.0, 0.0], [0.2, -0.4]],
+    ]
+)
 discounts = torch.tensor([[1.0, 1.0], [0.0, 1.0], [1.0, 1.0], [1.0, 1.0]])
 target_lp = torch.tensor([[-1.0, -0.5], [-0.2, -1.5], [-2.0, -0.3], [-0.7, -0.7]])
 behaviour_lp = torch.tensor([[-0.8, -0.6], [-0.9, -1.0], [-1.0, -0.3], [-1.5, -0.2]])
@@ -183,11 +237,20 @@ for b in range(Bs):
                 delta = rewards[j, b, k] + gamma * discounts[j, b] * v_next[j, b, k] - q_taken[j, b, k]
                 total += trace * delta.item()
             q_ret[s, b, k] = total
-write("retrace", {
-    "gamma": gamma, "q_taken": t(q_taken), "v_next": t(v_next), "rewards": t(rewards),
-    "discounts": t(discounts), "target_log_probs": t(target_lp), "behaviour_log_probs": t(behaviour_lp),
-    "importance": t(torch.tensor(c)), "targets": t(q_ret),
-})
+write(
+    "retrace",
+    {
+        "gamma": gamma,
+        "q_taken": t(q_taken),
+        "v_next": t(v_next),
+        "rewards": t(rewards),
+        "discounts": t(discounts),
+        "target_log_probs": t(target_lp),
+        "behaviour_log_probs": t(behaviour_lp),
+        "importance": t(torch.tensor(c)),
+        "targets": t(q_ret),
+    },
+)
 
 # ---------------------------------------------------------------- MO-V-MPO step 1 (D.2.1)
 # N = 8 (s, a) pairs, K = 2 objectives. Pair 0 is ineligible (padding / an episode start)
@@ -195,16 +258,18 @@ write("retrace", {
 # k = floor(0.5 * 7) = 3 per objective. Column 0's top three are 3.0, 1.0, 1.0 (a tie
 # inside the top k); column 1's are 2.0, 1.2, 0.5 with two more 0.5s tied at the
 # threshold, so 5 pairs are selected (selection uses >=, as rlax does).
-adv = torch.tensor([
-    [9.0, 0.3],
-    [3.0, -1.0],
-    [1.0, 0.5],
-    [1.0, 2.0],
-    [-2.0, 0.5],
-    [0.5, 1.2],
-    [-0.5, 0.5],
-    [0.0, -3.0],
-])
+adv = torch.tensor(
+    [
+        [9.0, 0.3],
+        [3.0, -1.0],
+        [1.0, 0.5],
+        [1.0, 2.0],
+        [-2.0, 0.5],
+        [0.5, 1.2],
+        [-0.5, 0.5],
+        [0.0, -3.0],
+    ]
+)
 eligible = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
 eta_values = [0.8, 1.5]
 eps = [0.1, 0.02]
@@ -235,12 +300,26 @@ for k in range(K):
     loss = loss + eta[k] * (eps[k] + torch.log(mean_exp))
 loss.backward()
 # KL(q_k || p_old) with p_old uniform (1 / n_el) over the eligible pairs
-kl = [sum(weights[i, k].item() * math.log(weights[i, k].item() * n_el) for i in range(N) if weights[i, k] > 0) for k in range(K)]
-write("vmpo_estep", {
-    "advantages": t(adv), "eligible": eligible, "temperature": eta_values, "temperature_param": param.detach().tolist(),
-    "epsilon": eps, "fraction": frac, "selected": t(selected), "weights": t(weights),
-    "temperature_loss": loss.item(), "grad_temperature_param": param.grad.tolist(), "kl": kl,
-})
+kl = [
+    sum(weights[i, k].item() * math.log(weights[i, k].item() * n_el) for i in range(N) if weights[i, k] > 0)
+    for k in range(K)
+]
+write(
+    "vmpo_estep",
+    {
+        "advantages": t(adv),
+        "eligible": eligible,
+        "temperature": eta_values,
+        "temperature_param": param.detach().tolist(),
+        "epsilon": eps,
+        "fraction": frac,
+        "selected": t(selected),
+        "weights": t(weights),
+        "temperature_loss": loss.item(),
+        "grad_temperature_param": param.grad.tolist(),
+        "kl": kl,
+    },
+)
 
 # ---------------------------------------------------------------- T-step targets (D.1, eq. 21)
 # T = 4 steps, B = 3 unrolls, C = 2 heads, gamma 0.95. Unroll 0: all real, no terminal.
@@ -271,10 +350,18 @@ for b in range(Bs):
                 scale *= gamma * discounts[z, b].item()
             g += scale * values[end, b, c_].item()
             targets[s, b, c_] = g
-write("vmpo_targets", {
-    "gamma": gamma, "rewards": t(rewards), "values": t(values), "discounts": t(discounts), "valid": t(valid),
-    "targets": t(targets), "valid_mask": t(valid),
-})
+write(
+    "vmpo_targets",
+    {
+        "gamma": gamma,
+        "rewards": t(rewards),
+        "values": t(values),
+        "discounts": t(discounts),
+        "valid": t(valid),
+        "targets": t(targets),
+        "valid_mask": t(valid),
+    },
+)
 
 # ---------------------------------------------------------------- MO-V-MPO step 2 (D.2.2, eq. 25)
 # N = 3 pairs, D = 2: -sum_i w_i [log pi_mu(a_i|s_i) + log pi_Sigma(a_i|s_i)] with the decoupled
@@ -299,11 +386,27 @@ kl_sig = sum(torch.distributions.kl_divergence(Nrm(tm[i], ts[i]), Nrm(tm[i], os_
 policy_loss = nll + a_mu.detach() * kl_mu + a_sig.detach() * kl_sig
 alpha_loss = a_mu * (beta_mu - kl_mu.detach()) + a_sig * (beta_sig - kl_sig.detach())
 (policy_loss + alpha_loss).backward()
-write("vmpo_mstep", {
-    "online_mean": t(om), "online_std": t(os_), "target_mean": t(tm), "target_std": t(ts), "actions": t(acts),
-    "weights": w.tolist(), "alpha_mean": a_mu.item(), "alpha_cov": a_sig.item(), "beta_mean": beta_mu,
-    "beta_cov": beta_sig, "policy_loss": policy_loss.item(), "alpha_loss": alpha_loss.item(),
-    "kl_mean": kl_mu.item(), "kl_cov": kl_sig.item(), "grad_alpha_mean": a_mu.grad.item(),
-    "grad_alpha_cov": a_sig.grad.item(), "grad_online_mean": t(om.grad), "grad_online_std": t(os_.grad),
-})
+write(
+    "vmpo_mstep",
+    {
+        "online_mean": t(om),
+        "online_std": t(os_),
+        "target_mean": t(tm),
+        "target_std": t(ts),
+        "actions": t(acts),
+        "weights": w.tolist(),
+        "alpha_mean": a_mu.item(),
+        "alpha_cov": a_sig.item(),
+        "beta_mean": beta_mu,
+        "beta_cov": beta_sig,
+        "policy_loss": policy_loss.item(),
+        "alpha_loss": alpha_loss.item(),
+        "kl_mean": kl_mu.item(),
+        "kl_cov": kl_sig.item(),
+        "grad_alpha_mean": a_mu.grad.item(),
+        "grad_alpha_cov": a_sig.grad.item(),
+        "grad_online_mean": t(om.grad),
+        "grad_online_std": t(os_.grad),
+    },
+)
 print("wrote", sorted(p.name for p in OUT.glob("*.json")))

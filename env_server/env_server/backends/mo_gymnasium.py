@@ -31,8 +31,7 @@ class MoGymTask(Task):
         low = np.broadcast_to(reward_space.low, (k,))
         high = np.broadcast_to(reward_space.high, (k,))
         self.objectives = tuple(
-            Objective(str(n), f"{mo_id} reward entry {i}", float(low[i]), float(high[i]))
-            for i, n in enumerate(names)
+            Objective(str(n), f"{mo_id} reward entry {i}", float(low[i]), float(high[i])) for i, n in enumerate(names)
         )
         self.observation_space = self.env.observation_space
         self.action_space = self.env.action_space

@@ -47,8 +47,8 @@ of the clip.
 
 from __future__ import annotations
 
-import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -76,7 +76,9 @@ def scalarized(reward: np.ndarray, lam: float) -> float:
 class HumanoidMocap(Task):
     """CMU humanoid mocap tracking; objectives [com, vel, app, quat, trunc]."""
 
-    description = "humanoid mocap tracking (paper B.4): [com, vel, app, quat, trunc], act 56; synthetic clips unless clip_path"
+    description = (
+        "humanoid mocap tracking (paper B.4): [com, vel, app, quat, trunc], act 56; synthetic clips unless clip_path"
+    )
     objectives = (
         Objective("com", "exp(-10 ||p_com - p_com_ref||^2)", 0.0, 1.0),
         Objective("vel", "exp(-0.1 ||qvel - qvel_ref||^2)", 0.0, 1.0),
@@ -201,7 +203,9 @@ class HumanoidMocap(Task):
             self._reward[0] = scalarized(self._vector, self.scalarized_lambda)
         last = ts.last()
         terminated = bool(last and ts.discount == 0.0)
-        return StepOutcome(self._flatten(ts.observation), self._reward, terminated, last and not terminated, self._info())
+        return StepOutcome(
+            self._flatten(ts.observation), self._reward, terminated, last and not terminated, self._info()
+        )
 
     def close(self) -> None:
         self.env.close()

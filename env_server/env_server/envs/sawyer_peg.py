@@ -98,7 +98,7 @@ def sawyer_xml_path() -> str:
     return os.path.join(spec.submodule_search_locations[0], "models", "assets", "robots", "sawyer", "robot.xml")
 
 
-def shaping(dist: float, l: float, eps: float) -> float:
+def shaping(dist: float, l: float, eps: float) -> float:  # noqa: E741 (the paper names it l)
     """Paper eq. 13: 1 - tanh^2(atanh(sqrt(l)) / eps * dist); equals 1 - l at dist = eps."""
     return 1.0 - math.tanh(math.atanh(math.sqrt(l)) / eps * dist) ** 2
 
@@ -123,7 +123,9 @@ def _rotvec(r: np.ndarray) -> np.ndarray:
 class SawyerPeg(Task):
     """Peg-in-hole; objectives [insertion, force]."""
 
-    description = "Sawyer peg-in-hole (paper B.5): Cartesian velocity 20 Hz; [insertion, force], obs 123, act 3, 600 steps"
+    description = (
+        "Sawyer peg-in-hole (paper B.5): Cartesian velocity 20 Hz; [insertion, force], obs 123, act 3, 600 steps"
+    )
     objectives = (
         Objective("insertion", "max(0.2 r_approach, r_inserted), paper eqs. 9-13", 0.0, 1.0),
         Objective("force", "-||F||_1 of the wrist force sensor (N), paper eq. 14", -math.inf, 0.0),
@@ -186,15 +188,31 @@ class SawyerPeg(Task):
             act.ctrlrange = [-QD_MAX, QD_MAX]
             act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
             act.forcerange = [-torque, torque]
-        spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1], contype=0, conaffinity=0)
+        spec.worldbody.add_geom(
+            name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1], contype=0, conaffinity=0
+        )
         ft = spec.body("right_hand").add_body(name="ft_frame", quat=list(inv), gravcomp=1.0)
         ft.add_site(name="ft_site", size=[0.01, 0.01, 0.01])
-        spec.add_sensor(name="wrist_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="ft_site")
-        spec.add_sensor(name="wrist_torque", type=mujoco.mjtSensor.mjSENS_TORQUE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="ft_site")
+        spec.add_sensor(
+            name="wrist_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="ft_site"
+        )
+        spec.add_sensor(
+            name="wrist_torque",
+            type=mujoco.mjtSensor.mjSENS_TORQUE,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            objname="ft_site",
+        )
         peg = ft.add_body(name="peg", pos=[0, 0, -PEG_HALF[2]], gravcomp=1.0)
         peg.add_geom(
-            name="peg", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(PEG_HALF), mass=0.05,
-            contype=4, conaffinity=4, rgba=[0.2, 0.6, 0.9, 1], condim=3, friction=[0.3, 0.005, 0.0001],
+            name="peg",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=list(PEG_HALF),
+            mass=0.05,
+            contype=4,
+            conaffinity=4,
+            rgba=[0.2, 0.6, 0.9, 1],
+            condim=3,
+            friction=[0.3, 0.005, 0.0001],
         )
         peg.add_site(name="peg_tip", pos=[0, 0, -PEG_HALF[2]], size=[0.003, 0.003, 0.003])
         # The fixture: a square hole, opening at OPENING, HOLE_DEPTH deep, on a pedestal to the floor.
@@ -210,8 +228,15 @@ class SawyerPeg(Task):
             ("hole_bottom", [0, 0, -HOLE_DEPTH - bottom / 2], [h + wall, h + wall, bottom / 2]),
         ]:
             fixture.add_geom(
-                name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size, contype=4, conaffinity=4,
-                rgba=[0.6, 0.6, 0.6, 1], condim=3, friction=[0.3, 0.005, 0.0001],
+                name=name,
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                pos=pos,
+                size=size,
+                contype=4,
+                conaffinity=4,
+                rgba=[0.6, 0.6, 0.6, 1],
+                condim=3,
+                friction=[0.3, 0.005, 0.0001],
             )
         fixture.add_site(name="hole_opening", size=[0.003, 0.003, 0.003])
         return spec.compile()
@@ -301,7 +326,9 @@ class SawyerPeg(Task):
         force = self.wrist_force()
         self._reward[0] = insertion_reward(self.tip())
         self._reward[1] = -np.abs(force).sum()
-        terminated = bool(abs(force[0]) > FORCE_LIMIT_XY or abs(force[1]) > FORCE_LIMIT_XY or abs(force[2]) > FORCE_LIMIT_Z)
+        terminated = bool(
+            abs(force[0]) > FORCE_LIMIT_XY or abs(force[1]) > FORCE_LIMIT_XY or abs(force[2]) > FORCE_LIMIT_Z
+        )
         self._frames[1:] = self._frames[:-1].copy()
         self._frames[0] = self._frame()
         return StepOutcome(self._observe(), self._reward, terminated, False, self._info())

@@ -31,7 +31,6 @@ asset's world frame, 7 cm above the resting fingertips, over the index and middl
 from __future__ import annotations
 
 import mujoco
-import numpy as np
 
 from env_server.envs._shadow_hand import TOUCH_SUCCESS_N, ForceObjectTask
 

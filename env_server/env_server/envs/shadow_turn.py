@@ -79,7 +79,10 @@ class ShadowTurn(ForceObjectTask):
             rgba=[0, 0, 0, 0],
         )
         spec.add_sensor(
-            name="obj_touch", type=mujoco.mjtSensor.mjSENS_TOUCH, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="obj_touch_site"
+            name="obj_touch",
+            type=mujoco.mjtSensor.mjSENS_TOUCH,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            objname="obj_touch_site",
         )
         spec.add_sensor(
             name="dial_angle", type=mujoco.mjtSensor.mjSENS_JOINTPOS, objtype=mujoco.mjtObj.mjOBJ_JOINT, objname="dial"

@@ -35,8 +35,9 @@ class FaultyTask(Task):
         if action == 3:
             raise RuntimeError("the simulator exploded")
         self._x += int(action) - 1
-        return StepOutcome(np.array([self._x], np.float32), np.array([-1.0], np.float32), False, False,
-                           {"position": self._x})
+        return StepOutcome(
+            np.array([self._x], np.float32), np.array([-1.0], np.float32), False, False, {"position": self._x}
+        )
 
 
 class BadRewardTask(FaultyTask):
