@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Set up (scripts/setup.sh) and run every test: env_server's Python tests, then
+# Set up (scripts/setup.sh), check formatting and lints (cargo fmt, clippy with
+# warnings as errors, ruff), and run every test: env_server's Python tests, then
 # the Rust unit, golden and end-to-end tests (which start real env_server
 # processes on 127.0.0.1 with OS-chosen ports). Needs no GPU and no network
 # beyond the package registries used by setup.
@@ -7,6 +8,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 export MUJOCO_GL=${MUJOCO_GL:-disable}
+
+echo "==> format and lints (cargo fmt, ruff, clippy)"
+cargo fmt --all --check
+.venv/bin/ruff format --check .
+.venv/bin/ruff check .
+cargo clippy --locked --workspace --all-targets -- -D warnings
 
 echo "==> Python tests (env_server)"
 (cd env_server && ../.venv/bin/python -m pytest -q tests)
