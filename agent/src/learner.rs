@@ -19,6 +19,7 @@ use crate::checkpoint::CheckpointError;
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::PolicySnapshot;
 use crate::schedule::{Counters, Schedule};
+use crate::tensorboard::Scalar;
 
 /// Counters saved beside each learner checkpoint.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -144,6 +145,59 @@ pub struct LearnerRecord {
     pub policy_kl: Vec<f32>,
     /// Milliseconds of the step.
     pub step_ms: f64,
+    /// Env steps per second since the previous record (or the start).
+    pub env_steps_per_second: f64,
+    /// Learner steps per second since the previous record (or the start).
+    pub learner_steps_per_second: f64,
+}
+
+/// Labels for a vector of statistics: objective names when there is one entry per
+/// objective, the two parts of the Gaussian trust region when there are two, else indices.
+fn labels(values: &[f32], objectives: &[String], parts: bool) -> Vec<String> {
+    if !parts && values.len() == objectives.len() {
+        objectives.to_vec()
+    } else if parts && values.len() == 2 {
+        vec!["mean".into(), "covariance".into()]
+    } else {
+        (0..values.len()).map(|i| i.to_string()).collect()
+    }
+}
+
+impl LearnerRecord {
+    /// The record as TensorBoard scalars (`learner/...`, `throughput/...`), labelled by
+    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts).
+    pub fn scalars(&self, objectives: &[String]) -> Vec<Scalar> {
+        let mut out = Vec::new();
+        let groups: [(&str, &[f32], bool); 5] = [
+            ("critic_loss", &self.critic_loss, false),
+            ("temperature", &self.temperature, false),
+            ("estep_kl", &self.estep_kl, false),
+            ("alpha", &self.alpha, true),
+            ("policy_kl", &self.policy_kl, true),
+        ];
+        for (name, values, parts) in groups {
+            for (label, v) in labels(values, objectives, parts).iter().zip(values) {
+                out.push(Scalar::new(
+                    format!("learner/{name}/{label}"),
+                    f64::from(*v),
+                ));
+            }
+        }
+        out.push(Scalar::new("learner/step_ms", self.step_ms));
+        out.push(Scalar::new(
+            "learner/learner_steps",
+            self.learner_step as f64,
+        ));
+        out.push(Scalar::new(
+            "throughput/env_steps_per_second",
+            self.env_steps_per_second,
+        ));
+        out.push(Scalar::new(
+            "throughput/learner_steps_per_second",
+            self.learner_steps_per_second,
+        ));
+        out
+    }
 }
 
 /// What the learner thread needs.
@@ -180,6 +234,8 @@ pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
         latest,
     } = ctx;
     let started = Instant::now();
+    // (seconds, env steps, learner steps) at the previous record, for the rates.
+    let mut previous = (0.0, schedule.counters().env_steps, learner.step_count());
     let device = learner.device();
     let batch_size = learner.settings().batch_size;
     let result = (|| -> Result<(), LearnerLoopError> {
@@ -197,18 +253,30 @@ pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
                 params.send_replace(Arc::new(learner.policy_snapshot()));
             }
             if n % log_period == 0 {
+                let (wall_seconds, env_steps) = (
+                    started.elapsed().as_secs_f64(),
+                    schedule.counters().env_steps,
+                );
+                let dt = (wall_seconds - previous.0).max(1e-9);
                 let record = LearnerRecord {
                     learner_step: n,
-                    env_steps: schedule.counters().env_steps,
-                    wall_seconds: started.elapsed().as_secs_f64(),
+                    env_steps,
+                    wall_seconds,
                     critic_loss: stats.critic_loss.clone(),
                     temperature: stats.temperature.clone(),
                     estep_kl: stats.estep_kl.clone(),
                     alpha: stats.alpha.clone(),
                     policy_kl: stats.policy_kl.clone(),
                     step_ms,
+                    env_steps_per_second: env_steps.saturating_sub(previous.1) as f64 / dt,
+                    learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,
                 };
+                previous = (wall_seconds, env_steps, n);
                 let path = files.dir().join("learner.jsonl");
+                // Every TensorBoard chart is by env step, as in SB3 and Acme.
+                files
+                    .scalars(env_steps, &record.scalars(files.objectives()))
+                    .map_err(io_err(&path))?;
                 files.learner(&record).map_err(io_err(&path))?;
             }
             *latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);

@@ -41,4 +41,5 @@ pub mod schedule;
 pub mod solve;
 pub mod spec;
 pub mod sweep;
+pub mod tensorboard;
 pub mod train;

@@ -9,6 +9,7 @@ use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
 use agent::eval::evaluate_checkpoint;
+use agent::metrics::format_vector;
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
 use agent::train::{TrainOptions, TrainSummary, train};
@@ -153,7 +154,12 @@ async fn run() -> Result<()> {
             if let Some(local) = local {
                 local.stop().await?;
             }
-            print_summary(&summary?);
+            let summary = summary?;
+            print_summary(&summary);
+            if summary.interrupted.is_some() {
+                // The shell's convention for a job ended by SIGINT.
+                std::process::exit(130);
+            }
         }
         Command::Sweep {
             config,
@@ -307,6 +313,12 @@ fn print_summary(s: &TrainSummary) {
     );
     let eta: Vec<f64> = s.temperature.iter().map(|&t| f64::from(t)).collect();
     println!("  temperatures eta_k     {}", format_vector(&eta));
+    if let Some(signal) = &s.interrupted {
+        println!(
+            "  interrupted by {signal}: no evaluation; continue with `agent train --resume {}`",
+            s.run_dir.display()
+        );
+    }
     println!(
         "  eval return ({} episodes, deterministic policy)",
         s.eval_episodes.len()
@@ -340,7 +352,7 @@ fn print_summary(s: &TrainSummary) {
         }
     }
     println!(
-        "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg checkpoints/"
+        "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg events.out.tfevents.* checkpoints/"
     );
 }
 
@@ -424,9 +436,4 @@ async fn demo(
     );
     env.close().await?;
     Ok(())
-}
-
-fn format_vector(values: &[f64]) -> String {
-    let parts: Vec<String> = values.iter().map(|v| format!("{v:.2}")).collect();
-    format!("[{}]", parts.join(", "))
 }

@@ -4,6 +4,8 @@
 //! - `episodes.csv`: one row per finished training episode, with the server's
 //!   undiscounted and discounted vector returns and the seconds since training began;
 //! - `learner.jsonl`: learner statistics every `log_period` learner steps;
+//! - `events.out.tfevents.*`: the same figures for TensorBoard, every chart by env
+//!   step (training returns, learner statistics, throughput, final evaluation returns);
 //! - `checkpoints/`, `summary.json`, `curves.{png,svg}` (written by `train`).
 
 use std::fs::{File, OpenOptions};
@@ -14,13 +16,16 @@ use std::sync::Mutex;
 use serde::Serialize;
 
 use crate::env::EpisodeSummary;
+use crate::tensorboard::{EventWriter, Scalar};
 
 /// Append-only writers of one run directory.
 #[derive(Debug)]
 pub struct RunFiles {
     dir: PathBuf,
+    objectives: Vec<String>,
     episodes: Mutex<BufWriter<File>>,
     learner: Mutex<BufWriter<File>>,
+    events: Mutex<EventWriter>,
 }
 
 /// One row of `episodes.csv`.
@@ -67,8 +72,10 @@ impl RunFiles {
         let (learner, _) = append(&dir.join("learner.jsonl"))?;
         Ok(Self {
             dir: dir.to_path_buf(),
+            objectives: objective_names.to_vec(),
             episodes: Mutex::new(episodes),
             learner: Mutex::new(learner),
+            events: Mutex::new(EventWriter::create(dir)?),
         })
     }
 
@@ -77,7 +84,12 @@ impl RunFiles {
         &self.dir
     }
 
-    /// Append one episode row.
+    /// Objective names in reward order.
+    pub fn objectives(&self) -> &[String] {
+        &self.objectives
+    }
+
+    /// Append one episode row (and its returns to the TensorBoard file, by env step).
     pub fn episode(&self, record: &EpisodeRecord) -> std::io::Result<()> {
         let e = &record.episode;
         let mut row = vec![
@@ -90,12 +102,44 @@ impl RunFiles {
         row.extend(e.discounted_return.iter().map(|v| format!("{v}")));
         row.push(e.terminated.to_string());
         row.push(format!("{:.3}", record.wall_seconds));
-        let mut w = self.episodes.lock().unwrap_or_else(|p| p.into_inner());
-        writeln!(w, "{}", row.join(","))
+        {
+            let mut w = self.episodes.lock().unwrap_or_else(|p| p.into_inner());
+            writeln!(w, "{}", row.join(","))?;
+        }
+        let mut scalars = self.per_objective("train/return", &e.episode_return);
+        scalars.extend(self.per_objective("train/discounted_return", &e.discounted_return));
+        scalars.push(Scalar::new("train/episode_length", e.length as f64));
+        self.scalars(record.env_steps, &scalars)
     }
 
-    /// Append one JSON line to `learner.jsonl`, then flush both files so a run can be
-    /// followed with `tail -f` (records come every `log_period` learner steps).
+    /// `<prefix>/<objective name>` for each entry of a vector in reward order.
+    pub fn per_objective(&self, prefix: &str, values: &[f64]) -> Vec<Scalar> {
+        self.objectives
+            .iter()
+            .zip(values)
+            .map(|(name, v)| Scalar::new(format!("{prefix}/{name}"), *v))
+            .collect()
+    }
+
+    /// Tell TensorBoard that a resumed run continues from `env_steps`: what the earlier
+    /// process logged beyond it (after its last checkpoint) is superseded.
+    pub fn resumed_at(&self, env_steps: u64) -> std::io::Result<()> {
+        self.events
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .restart(env_steps)
+    }
+
+    /// Write scalars to the TensorBoard file at `step` (flushed with the other files).
+    pub fn scalars(&self, step: u64, scalars: &[Scalar]) -> std::io::Result<()> {
+        self.events
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .scalars(step, scalars)
+    }
+
+    /// Append one JSON line to `learner.jsonl`, then flush every file so a run can be
+    /// followed with `tail -f` or TensorBoard (records come every `log_period` learner steps).
     pub fn learner<T: Serialize>(&self, record: &T) -> std::io::Result<()> {
         let line = serde_json::to_string(record).map_err(std::io::Error::other)?;
         {
@@ -105,9 +149,13 @@ impl RunFiles {
         self.flush()
     }
 
-    /// Flush both files (at checkpoints and at exit).
+    /// Flush every file (at checkpoints, log records and exit).
     pub fn flush(&self) -> std::io::Result<()> {
         self.episodes
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .flush()?;
+        self.events
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .flush()?;
@@ -116,6 +164,27 @@ impl RunFiles {
             .unwrap_or_else(|p| p.into_inner())
             .flush()
     }
+}
+
+/// One value rounded for reading: two decimals from 1 up, three significant digits
+/// below (at most six decimals). Returns summed from float32 rewards carry float32
+/// noise (0.7 arrives as 0.699999988079071), which no reader wants to see.
+pub fn format_value(v: f64) -> String {
+    let magnitude = v.abs();
+    if !v.is_finite() || magnitude >= 1.0 {
+        return format!("{v:.2}");
+    }
+    if magnitude == 0.0 {
+        return "0".into();
+    }
+    let decimals = (2 - magnitude.log10().floor() as i32).clamp(2, 6) as usize;
+    format!("{v:.decimals$}")
+}
+
+/// `[a, b, ...]` with each value rounded by [`format_value`].
+pub fn format_vector(values: &[f64]) -> String {
+    let parts: Vec<String> = values.iter().map(|v| format_value(*v)).collect();
+    format!("[{}]", parts.join(", "))
 }
 
 /// Write `value` as pretty JSON to `path` atomically (temp file + rename).
@@ -128,4 +197,21 @@ pub fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Resul
         f.sync_all()?;
     }
     std::fs::rename(&tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn printed_values_are_rounded_for_reading() {
+        assert_eq!(format_value(f64::from(0.7f32)), "0.700");
+        assert_eq!(format_value(-0.012_345), "-0.0123");
+        assert_eq!(format_value(124.0), "124.00");
+        assert_eq!(format_value(-1234.5678), "-1234.57");
+        assert_eq!(format_value(1e-9), "0.000000");
+        assert_eq!(format_value(0.0), "0");
+        assert_eq!(format_value(f64::NAN), "NaN");
+        assert_eq!(format_vector(&[1.0, 0.25]), "[1.00, 0.250]");
+    }
 }

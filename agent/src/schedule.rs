@@ -46,6 +46,8 @@ pub struct Counters {
     pub stop: bool,
     /// First fatal error, if any.
     pub error: Option<String>,
+    /// The signal that stopped the run early (`Ctrl-C`, `SIGTERM`), if one did.
+    pub interrupted: Option<String>,
     /// Decides and keeps when the run first counted as solved (`run.solve_threshold`).
     pub solve: SolveTracker,
 }
@@ -234,6 +236,16 @@ impl Schedule {
         if c.error.is_none() {
             c.error = error;
         }
+        drop(c);
+        self.learner_wake.notify_all();
+        self.actor_wake.notify_waiters();
+    }
+
+    /// End the run early because of `signal`: not an error, the run still reports.
+    pub fn interrupt(&self, signal: &str) {
+        let mut c = self.lock();
+        c.stop = true;
+        c.interrupted.get_or_insert_with(|| signal.to_string());
         drop(c);
         self.learner_wake.notify_all();
         self.actor_wake.notify_waiters();

@@ -2,9 +2,11 @@
 //!
 //! `train` makes (or, with `resume`, reopens) `runs/<task>__<algo>__<seed>__<time>/`,
 //! writes the resolved config there, runs the actors (tokio tasks) and the learner
-//! (an OS thread) under the schedule's rate limit, stops on the env-step budget or
-//! Ctrl-C, evaluates the deterministic policy, and writes `summary.json` and the
-//! learning curves (`curves.png`, `curves.svg`).
+//! (an OS thread) under the schedule's rate limit, stops on the env-step budget,
+//! evaluates the deterministic policy, and writes `summary.json` and the learning
+//! curves (`curves.png`, `curves.svg`). Ctrl-C or SIGTERM stops it early: the learner
+//! writes a checkpoint and the run still writes its summary (marked `interrupted`, no
+//! evaluation), curves and TensorBoard events; a second Ctrl-C exits at once.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -118,6 +120,9 @@ pub struct TrainSummary {
     /// When the mean of the last 10 training episodes first reached every threshold
     /// (`null` when it never did, or no threshold was given).
     pub solved: Option<SolveRecord>,
+    /// The signal (`Ctrl-C`, `SIGTERM`) that stopped the run before its budget; `null`
+    /// when it ran to the end. An interrupted run has no evaluation episodes.
+    pub interrupted: Option<String>,
 }
 
 /// Run one training job against the servers at `addresses` (round-robin per actor).
@@ -163,6 +168,9 @@ pub async fn train(
         }
     };
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
+    if options.resume.is_some() {
+        files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
+    }
     let settings = cfg.learner.shared();
     let on_policy = cfg.learner.algorithm.on_policy();
     let layout = SnippetLayout {
@@ -253,12 +261,20 @@ pub async fn train(
             objectives.clone(),
         );
         tokio::spawn(async move {
+            let mut signal = std::pin::pin!(interrupt_signal());
+            let mut signalled = false;
             loop {
                 tokio::select! {
                     _ = tokio::time::sleep(Duration::from_millis(250)) => {}
-                    _ = tokio::signal::ctrl_c() => {
-                        tracing::warn!("Ctrl-C: stopping after a final checkpoint");
-                        schedule.stop(Some("interrupted (Ctrl-C); resume with --resume".into()));
+                    name = &mut signal, if !signalled => {
+                        signalled = true;
+                        tracing::warn!("{name}: stopping after a final checkpoint and report (Ctrl-C again to exit at once)");
+                        schedule.interrupt(name);
+                        tokio::spawn(async {
+                            if tokio::signal::ctrl_c().await.is_ok() {
+                                std::process::exit(130);
+                            }
+                        });
                     }
                 }
                 let c = schedule.counters();
@@ -298,7 +314,11 @@ pub async fn train(
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
-    let eval = evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?;
+    // Whoever stopped the run wants it to end soon: no evaluation episodes then.
+    let eval = match counters.interrupted {
+        Some(_) => Vec::new(),
+        None => evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?,
+    };
     let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let summary = TrainSummary {
         run_dir: run_dir.clone(),
@@ -316,10 +336,51 @@ pub async fn train(
         learner_device: format!("{device:?}"),
         solve_threshold: cfg.run.solve_threshold.clone(),
         solved: schedule.solved(),
+        interrupted: counters.interrupted.clone(),
     };
+    if !summary.eval_episodes.is_empty() {
+        let mut scalars = files.per_objective("eval/return", &summary.eval_return);
+        scalars
+            .extend(files.per_objective("eval/discounted_return", &summary.eval_discounted_return));
+        files
+            .scalars(summary.env_steps, &scalars)
+            .map_err(io(&run_dir))?;
+    }
+    files.flush().map_err(io(&run_dir))?;
     write_json_atomic(&run_dir.join("summary.json"), &summary).map_err(io(&run_dir))?;
     plot_curves(&run_dir, &objectives)?;
     Ok(summary)
+}
+
+/// Resolves on the first Ctrl-C (SIGINT) or SIGTERM, with its name.
+async fn interrupt_signal() -> &'static str {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => tokio::select! {
+                name = ctrl_c() => name,
+                _ = term.recv() => "SIGTERM",
+            },
+            Err(e) => {
+                tracing::warn!("cannot listen for SIGTERM ({e}); only Ctrl-C stops the run early");
+                ctrl_c().await
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        ctrl_c().await
+    }
+}
+
+/// Resolves on Ctrl-C; never, when the handler cannot be installed.
+async fn ctrl_c() -> &'static str {
+    if let Err(e) = tokio::signal::ctrl_c().await {
+        tracing::warn!("cannot listen for Ctrl-C ({e})");
+        std::future::pending::<()>().await;
+    }
+    "Ctrl-C"
 }
 
 pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {

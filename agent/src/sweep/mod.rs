@@ -17,6 +17,7 @@ use futures::StreamExt;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{Algorithm, ConfigError, ObjectiveWeight};
+use crate::metrics::format_vector;
 use crate::pareto::{expected_utility, hypervolume, non_dominated, simplex_weights};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, TrainOptions, TrainSummary, train};
@@ -361,10 +362,17 @@ pub async fn sweep(
                 },
             )
             .await?;
+            if let Some(signal) = &s.interrupted {
+                // The signal reached every run: end the sweep instead of starting more.
+                return Err(TrainError::Stopped(format!(
+                    "interrupted ({signal}); run {} has its checkpoint and report",
+                    s.run_dir.display()
+                )));
+            }
             let line = format!(
-                "  {:<40} seed {seed}: eval return {:?}",
+                "  {:<40} seed {seed}: eval return {}",
                 setting_label(&setting),
-                s.eval_return
+                format_vector(&s.eval_return)
             );
             // A bar drawn to a non-terminal is hidden and would swallow println.
             if bar.is_hidden() {

@@ -1,0 +1,177 @@
+//! SIGTERM, then Ctrl-C (SIGINT), during `agent train`, then `--resume` to the end:
+//! every stop still leaves a report (summary marked interrupted, curves, TensorBoard
+//! events that TensorBoard's own reader accepts), and the run finishes where an
+//! uninterrupted one would. Runs the real CLI binary against a real env_server.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use agent::env::server_process::{LocalServer, ServerOptions, default_python};
+use agent::learner::latest_checkpoint;
+
+fn agent_cmd(args: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_agent"));
+    c.args(args)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    c
+}
+
+fn run_dir_in(runs: &Path) -> Option<PathBuf> {
+    std::fs::read_dir(runs)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .find(|p| p.is_dir())
+}
+
+/// Wait until the run in `runs` has a checkpoint past `learner_steps`, then send `signal`.
+fn signal_after(child: &mut Child, runs: &Path, learner_steps: u64, signal: i32) -> PathBuf {
+    let started = Instant::now();
+    let run = loop {
+        assert!(
+            started.elapsed() < Duration::from_secs(180),
+            "no checkpoint past {learner_steps} learner steps within 180 s"
+        );
+        if let Some(run) = run_dir_in(runs)
+            && let Ok((_, progress)) = latest_checkpoint(&run)
+            && progress.learner_steps >= learner_steps
+        {
+            break run;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let pid = i32::try_from(child.id()).unwrap();
+    // SAFETY: kill(2) on our own child's pid, with a valid signal number.
+    assert_eq!(unsafe { libc::kill(pid, signal) }, 0);
+    run
+}
+
+fn summary(run: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
+}
+
+/// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
+fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/read_tensorboard.py");
+    let out = Command::new(default_python())
+        .arg(script)
+        .arg(run)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_interrupted_run_still_reports_and_resumes_to_the_end() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let text = std::fs::read_to_string(smoke)
+        .unwrap()
+        .replace("[run]\n", &format!("[run]\nruns_dir = {runs:?}\n"));
+    let config = dir.path().join("dst.toml");
+    std::fs::write(&config, text).unwrap();
+    let address = server.address().to_string();
+
+    // 1. SIGTERM (what a scheduler or `kill` sends).
+    let mut child = agent_cmd(&["train", "--config", config.to_str().unwrap()])
+        .args(["--server", &address])
+        .spawn()
+        .unwrap();
+    let run = signal_after(&mut child, &runs, 100, libc::SIGTERM);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{status:?}");
+    let first = summary(&run);
+    assert_eq!(first["interrupted"], "SIGTERM");
+    assert_eq!(first["eval_episodes"].as_array().unwrap().len(), 0);
+    let stopped_at = first["env_steps"].as_u64().unwrap();
+    assert!(
+        stopped_at > 0 && stopped_at < 8000,
+        "stopped at {stopped_at}"
+    );
+    assert!(run.join("curves.png").exists() && run.join("curves.svg").exists());
+    let scalars = tensorboard_scalars(&run);
+    for tag in [
+        "train/return/treasure",
+        "train/return/time",
+        "learner/temperature/treasure",
+        "learner/alpha/0",
+        "throughput/env_steps_per_second",
+    ] {
+        assert!(
+            scalars.get(tag).is_some_and(|v| !v.is_empty()),
+            "{tag} missing from {:?}",
+            scalars.keys()
+        );
+    }
+    // Every chart is by env step, and no training episode is stamped past the stop.
+    assert!(
+        scalars["train/return/treasure"]
+            .iter()
+            .all(|(step, _)| *step <= stopped_at)
+    );
+    assert!(!scalars.contains_key("eval/return/treasure"));
+
+    // 2. Ctrl-C (SIGINT) on the resumed run.
+    let mut child = agent_cmd(&["train", "--resume", run.to_str().unwrap()])
+        .args(["--server", &address])
+        .spawn()
+        .unwrap();
+    let (_, before) = latest_checkpoint(&run).unwrap();
+    signal_after(&mut child, &runs, before.learner_steps + 100, libc::SIGINT);
+    assert_eq!(child.wait().unwrap().code(), Some(130));
+    let second = summary(&run);
+    assert_eq!(second["interrupted"], "Ctrl-C");
+    assert!(second["env_steps"].as_u64().unwrap() > stopped_at);
+
+    // 3. Resume to the budget: the summary is complete and evaluation reaches TensorBoard.
+    let status = agent_cmd(&["train", "--resume", run.to_str().unwrap()])
+        .args(["--server", &address])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let last = summary(&run);
+    assert!(last["interrupted"].is_null());
+    assert_eq!(last["env_steps"].as_u64().unwrap(), 8000);
+    assert_eq!(last["eval_episodes"].as_array().unwrap().len(), 2);
+    let scalars = tensorboard_scalars(&run);
+    let eval = &scalars["eval/return/treasure"];
+    assert_eq!(eval.len(), 1);
+    assert_eq!(eval[0].0, 8000);
+    let expected = last["eval_return"][1].as_f64().unwrap();
+    assert!(
+        (eval[0].1 - expected).abs() <= 1e-4 * expected.abs().max(1.0),
+        "{} vs {expected}",
+        eval[0].1
+    );
+    // Three processes wrote event files; TensorBoard reads them as one run whose
+    // training-return steps only grow (each resume supersedes the stale tail).
+    let files = std::fs::read_dir(&run)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .starts_with("events.out.tfevents.")
+        })
+        .count();
+    assert_eq!(files, 3);
+    let steps: Vec<u64> = scalars["train/return/treasure"]
+        .iter()
+        .map(|(s, _)| *s)
+        .collect();
+    assert!(steps.windows(2).all(|w| w[0] <= w[1]), "{steps:?}");
+    assert!(*steps.last().unwrap() <= 8000);
+    server.stop().await.unwrap();
+}
