@@ -9,7 +9,7 @@ use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
 use agent::eval::evaluate_checkpoint;
-use agent::metrics::format_vector;
+use agent::metrics::{format_value, format_vector};
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
 use agent::train::{TrainOptions, TrainSummary, train};
@@ -204,11 +204,56 @@ async fn run() -> Result<()> {
                     format_vector(&p.eval_return)
                 );
             }
+            if s.seed_fronts.len() > 1 {
+                println!("  across seeds: median [min .. max] per objective");
+                for spread in &s.settings {
+                    let setting: Vec<String> = spread
+                        .setting
+                        .iter()
+                        .map(|(k, v)| format!("{k}={v}"))
+                        .collect();
+                    let cells: Vec<String> = (0..spread.median.len())
+                        .map(|i| {
+                            format!(
+                                "{} [{} .. {}]",
+                                format_value(spread.median[i]),
+                                format_value(spread.min[i]),
+                                format_value(spread.max[i])
+                            )
+                        })
+                        .collect();
+                    println!(
+                        "  {:<44} {:>5}  {}",
+                        setting.join(" "),
+                        format!("x{}", spread.seeds),
+                        cells.join("  ")
+                    );
+                }
+                let hv: Vec<f64> = s.seed_fronts.iter().map(|f| f.hypervolume).collect();
+                let each: Vec<String> = s
+                    .seed_fronts
+                    .iter()
+                    .map(|f| format!("seed {} {:.2}", f.seed, f.hypervolume))
+                    .collect();
+                println!(
+                    "  hypervolume per seed: {}; median {:.2}, range [{:.2} .. {:.2}]",
+                    each.join(", "),
+                    agent::sweep::seeds::median(&hv),
+                    hv.iter().copied().fold(f64::INFINITY, f64::min),
+                    hv.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+                );
+            }
             let reference = format_vector(&s.reference_point);
             println!(
-                "  hypervolume {:.2} (undiscounted, reference {reference}); EUM {:.3}",
+                "  hypervolume {:.2} (all runs; undiscounted, reference {reference}); EUM {:.3}",
                 s.hypervolume, s.expected_utility
             );
+            if let (Some(best), Some(igd)) = (s.true_hypervolume, s.igd) {
+                println!(
+                    "  true front: hypervolume {best:.2} ({:.0}% reached); IGD {igd:.3}",
+                    100.0 * s.hypervolume / best
+                );
+            }
             println!(
                 "  wrote points.csv front.csv summary.json front.png/svg in {}",
                 s.dir.display()

@@ -175,7 +175,7 @@ pub fn format_value(v: f64) -> String {
         return format!("{v:.2}");
     }
     if magnitude == 0.0 {
-        return "0".into();
+        return "0.00".into();
     }
     let decimals = (2 - magnitude.log10().floor() as i32).clamp(2, 6) as usize;
     format!("{v:.decimals$}")
@@ -210,7 +210,7 @@ mod tests {
         assert_eq!(format_value(124.0), "124.00");
         assert_eq!(format_value(-1234.5678), "-1234.57");
         assert_eq!(format_value(1e-9), "0.000000");
-        assert_eq!(format_value(0.0), "0");
+        assert_eq!(format_value(0.0), "0.00");
         assert_eq!(format_value(f64::NAN), "NaN");
         assert_eq!(format_vector(&[1.0, 0.25]), "[1.00, 0.250]");
     }

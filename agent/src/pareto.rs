@@ -1,4 +1,5 @@
-//! Pareto-front metrics: non-dominated filter, hypervolume, expected utility, IGD.
+//! Pareto-front metrics: non-dominated filter, hypervolume, expected utility, IGD, and
+//! the 2-D attainment surface that front plots draw.
 //!
 //! All objectives are maximised. Points are vector returns `[K]`; a front is a
 //! list of them. Definitions follow MORL-Baselines / pymoo (research notes,
@@ -123,6 +124,39 @@ pub fn simplex_weights(k: usize, n: usize) -> Vec<Vec<f64>> {
     out
 }
 
+/// The region `points` dominate above `reference`, for K = 2: a closed staircase
+/// polygon (the attainment surface), from the reference corner up along the left edge,
+/// across every non-dominated point, and down to the reference level. Its area is the
+/// hypervolume; drawing it shows exactly the trade-offs some point achieves, where a
+/// line joining the points would invent ones between them. Empty when no point
+/// exceeds the reference in both objectives.
+pub fn attainment_surface(points: &[(f64, f64)], reference: (f64, f64)) -> Vec<(f64, f64)> {
+    let (rx, ry) = reference;
+    let mut inside: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|&(x, y)| x > rx && y > ry)
+        .collect();
+    // Best y first, then best x among equal y: each kept point moves right and down.
+    inside.sort_by(|a, b| b.1.total_cmp(&a.1).then(b.0.total_cmp(&a.0)));
+    let mut front: Vec<(f64, f64)> = Vec::new();
+    for p in inside {
+        if front.last().is_none_or(|last| p.0 > last.0) {
+            front.push(p);
+        }
+    }
+    let Some(&(_, top)) = front.first() else {
+        return Vec::new();
+    };
+    let mut polygon = vec![(rx, ry), (rx, top)];
+    for (i, &(x, y)) in front.iter().enumerate() {
+        polygon.push((x, y));
+        let next_y = front.get(i + 1).map_or(ry, |n| n.1);
+        polygon.push((x, next_y));
+    }
+    polygon
+}
+
 /// Inverted generational distance: mean over `true_front` of the Euclidean distance
 /// to the nearest point of `found` (0 when every true point is found).
 pub fn igd(found: &[Vec<f64>], true_front: &[Vec<f64>]) -> f64 {
@@ -177,6 +211,40 @@ mod tests {
         // = 142.2 + 44.8 + 60.9 + 19.6 + 64.4 + 15.1 + 14 + 23 + 16.4 + 1.4 = 401.8
         let hv = hypervolume(&dst_front(), &[-25.0, 0.0]);
         assert!((hv - 401.8).abs() < 1e-9, "{hv}");
+    }
+
+    fn shoelace_area(polygon: &[(f64, f64)]) -> f64 {
+        let n = polygon.len();
+        (0..n)
+            .map(|i| {
+                let (a, b) = (polygon[i], polygon[(i + 1) % n]);
+                a.0 * b.1 - b.0 * a.1
+            })
+            .sum::<f64>()
+            .abs()
+            / 2.0
+    }
+
+    #[test]
+    fn the_attainment_surface_encloses_exactly_the_hypervolume() {
+        // Its area (shoelace formula) is the hypervolume, 401.8 for the DST front, also
+        // with dominated, duplicate and below-reference points mixed in.
+        let mut points: Vec<(f64, f64)> = dst_front().iter().map(|p| (p[0], p[1])).collect();
+        points.extend([(-10.0, 10.0), (-1.0, 0.7), (-30.0, 5.0), (-2.0, -1.0)]);
+        let polygon = attainment_surface(&points, (-25.0, 0.0));
+        assert!((shoelace_area(&polygon) - 401.8).abs() < 1e-9);
+        // A staircase: every edge is horizontal or vertical, starting at the reference.
+        assert_eq!(polygon[0], (-25.0, 0.0));
+        assert_eq!(polygon[1], (-25.0, 23.7));
+        assert_eq!(polygon[2], (-19.0, 23.7));
+        assert_eq!(polygon[3], (-19.0, 22.4));
+        assert_eq!(*polygon.last().unwrap(), (-1.0, 0.0));
+        let n = polygon.len();
+        assert!((0..n).all(|i| {
+            let (a, b) = (polygon[i], polygon[(i + 1) % n]);
+            a.0 == b.0 || a.1 == b.1
+        }));
+        assert!(attainment_surface(&[(-30.0, 5.0)], (-25.0, 0.0)).is_empty());
     }
 
     #[test]

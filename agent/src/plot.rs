@@ -12,10 +12,20 @@ use plotters::prelude::*;
 /// How a series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SeriesKind {
-    /// Unconnected markers (fronts, sweep points).
+    /// Unconnected filled circles (sweep points).
     Markers,
+    /// Unconnected hollow circles (a known optimum, e.g. the true front).
+    OpenMarkers,
+    /// Crosses (a reference point).
+    Crosses,
     /// A polyline (learning curves).
     Line,
+    /// A step plot: from each point horizontally to the next x, then vertically.
+    Steps,
+    /// A closed polygon, lightly filled and outlined (a dominated region).
+    Region,
+    /// A thin horizontal line across the plot at each point's y (levels to read off).
+    Levels,
 }
 
 /// One labelled set of (x, y) points.
@@ -143,7 +153,12 @@ where
         .margin(16)
         .x_label_area_size(48)
         .y_label_area_size(64);
-    let palette = |i: usize| Palette99::pick(i).to_rgba();
+    let palette = |i: usize| {
+        let (r, g, b) = TAB10[i % TAB10.len()];
+        RGBColor(r, g, b).to_rgba()
+    };
+    let legend = emptiest_corner(&finite, (x0, x1), (y0, y1), figure.log_x);
+    let x_range = x0..x1;
     macro_rules! body {
         ($chart:expr) => {{
             let mut chart = $chart;
@@ -164,8 +179,36 @@ where
                     SeriesKind::Markers => {
                         chart.draw_series(pts.map(|p| Circle::new(p, 5, color.filled())))?
                     }
+                    SeriesKind::OpenMarkers => {
+                        chart.draw_series(pts.map(|p| Circle::new(p, 8, color.stroke_width(2))))?
+                    }
+                    SeriesKind::Crosses => {
+                        chart.draw_series(pts.map(|p| Cross::new(p, 7, color.stroke_width(3))))?
+                    }
                     SeriesKind::Line => {
                         chart.draw_series(LineSeries::new(pts, color.stroke_width(2)))?
+                    }
+                    SeriesKind::Steps => {
+                        let corners: Vec<(f64, f64)> = pts.collect();
+                        chart.draw_series(
+                            corners.iter().map(|&p| Circle::new(p, 4, color.filled())),
+                        )?;
+                        chart
+                            .draw_series(LineSeries::new(steps(&corners), color.stroke_width(2)))?
+                    }
+                    SeriesKind::Region => {
+                        let ring: Vec<(f64, f64)> = pts.collect();
+                        let mut outline = ring.clone();
+                        outline.extend(ring.first().copied());
+                        chart.draw_series([Polygon::new(ring, color.mix(0.18).filled())])?;
+                        chart.draw_series(LineSeries::new(outline, color.stroke_width(2)))?
+                    }
+                    SeriesKind::Levels => {
+                        let (lo, hi) = (x_range.start, x_range.end);
+                        let style = color.mix(0.6).stroke_width(1);
+                        chart.draw_series(
+                            pts.map(|(_, y)| PathElement::new(vec![(lo, y), (hi, y)], style)),
+                        )?
                     }
                 };
                 anno.label(s.label.as_str()).legend(move |(x, y)| {
@@ -177,7 +220,7 @@ where
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
                 .label_font(("sans-serif", 14))
-                .position(SeriesLabelPosition::LowerRight)
+                .position(legend.clone())
                 .draw()?;
         }};
     }
@@ -187,6 +230,71 @@ where
         body!(builder.build_cartesian_2d(x0..x1, y0..y1)?);
     }
     Ok(Ok(()))
+}
+
+/// matplotlib's "tab10" colours: distinct, and readable on white (unlike pure yellow).
+const TAB10: [(u8, u8, u8); 10] = [
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+];
+
+/// The legend's corner: the one whose box of about the legend's size (35% of the width,
+/// 25% of the height) holds the fewest points, lower right first on ties, so the
+/// legend hides as little as it can.
+fn emptiest_corner(
+    points: &[(f64, f64)],
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+    log_x: bool,
+) -> SeriesLabelPosition {
+    let fx = |x: f64| {
+        if log_x {
+            (x.ln() - x0.ln()) / (x1.ln() - x0.ln())
+        } else {
+            (x - x0) / (x1 - x0)
+        }
+    };
+    let fy = |y: f64| (y - y0) / (y1 - y0);
+    let count = |right: bool, top: bool| {
+        points
+            .iter()
+            .filter(|&&(x, y)| {
+                let (u, v) = (fx(x), fy(y));
+                (if right { u >= 0.65 } else { u <= 0.35 })
+                    && (if top { v >= 0.75 } else { v <= 0.25 })
+            })
+            .count()
+    };
+    [
+        (SeriesLabelPosition::LowerRight, count(true, false)),
+        (SeriesLabelPosition::UpperRight, count(true, true)),
+        (SeriesLabelPosition::UpperLeft, count(false, true)),
+        (SeriesLabelPosition::LowerLeft, count(false, false)),
+    ]
+    .into_iter()
+    .min_by_key(|(_, n)| *n)
+    .map(|(corner, _)| corner)
+    .unwrap_or(SeriesLabelPosition::LowerRight)
+}
+
+/// The corners of a step plot through `points`: horizontal first, then vertical.
+fn steps(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(2 * points.len());
+    for (i, &p) in points.iter().enumerate() {
+        if i > 0 {
+            out.push((p.0, points[i - 1].1));
+        }
+        out.push(p);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -214,6 +322,50 @@ mod tests {
         for text in ["DST front", "time", "treasure", "MO-MPO"] {
             assert!(svg.contains(text), "svg lacks {text}");
         }
+    }
+
+    #[test]
+    fn steps_go_across_then_up_or_down() {
+        let corners = steps(&[(0.0, 1.0), (2.0, 3.0), (5.0, 0.5)]);
+        assert_eq!(
+            corners,
+            vec![(0.0, 1.0), (2.0, 1.0), (2.0, 3.0), (5.0, 3.0), (5.0, 0.5)]
+        );
+    }
+
+    #[test]
+    fn every_series_kind_draws_with_its_legend() {
+        let dir = tempfile::tempdir().unwrap();
+        let kinds = [
+            SeriesKind::Markers,
+            SeriesKind::OpenMarkers,
+            SeriesKind::Crosses,
+            SeriesKind::Line,
+            SeriesKind::Steps,
+            SeriesKind::Region,
+            SeriesKind::Levels,
+        ];
+        let figure = Figure {
+            title: "kinds".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: kinds
+                .iter()
+                .enumerate()
+                .map(|(i, &kind)| Series {
+                    label: format!("kind{i}"),
+                    points: vec![(1.0, i as f64), (2.0, i as f64 + 1.0), (3.0, 0.5)],
+                    kind,
+                })
+                .collect(),
+            log_x: true,
+        };
+        let files = save(&figure, &dir.path().join("kinds")).unwrap();
+        let svg = std::fs::read_to_string(&files[1]).unwrap();
+        for i in 0..kinds.len() {
+            assert!(svg.contains(&format!("kind{i}")), "svg lacks kind{i}");
+        }
+        assert!(svg.contains("<polygon"), "the region is a filled polygon");
     }
 
     #[test]

@@ -12,13 +12,14 @@ use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 mod report;
+pub mod seeds;
 
 use futures::StreamExt;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{Algorithm, ConfigError, ObjectiveWeight};
 use crate::metrics::format_vector;
-use crate::pareto::{expected_utility, hypervolume, non_dominated, simplex_weights};
+use crate::pareto::{expected_utility, hypervolume, igd, non_dominated, simplex_weights};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, TrainOptions, TrainSummary, train};
 
@@ -121,6 +122,11 @@ pub struct SweepConfig {
     /// Optional ε-ratio plot.
     #[serde(default)]
     pub ratio_plot: Option<RatioPlot>,
+    /// A known Pareto front (e.g. Deep Sea Treasure's ten treasures), objective name ->
+    /// values, entry i of every list being point i: drawn on the front and ratio plots,
+    /// and the sweep reports its hypervolume and the IGD of the found front to it.
+    #[serde(default)]
+    pub true_front: BTreeMap<String, Vec<f64>>,
 }
 
 fn default_seeds() -> Vec<u64> {
@@ -159,10 +165,21 @@ pub struct SweepSummary {
     pub points: Vec<SweepPoint>,
     /// Reference point in objective order.
     pub reference_point: Vec<f64>,
-    /// Hypervolume of the undiscounted evaluation returns.
+    /// Hypervolume of the undiscounted evaluation returns of every run (the union
+    /// over seeds).
     pub hypervolume: f64,
+    /// Hypervolume of each seed's points on its own.
+    pub seed_fronts: Vec<seeds::SeedFront>,
+    /// Per setting: median and range of the evaluation returns across seeds.
+    pub settings: Vec<seeds::SettingSpread>,
     /// Expected utility over evenly spread weights (100 for K = 2).
     pub expected_utility: f64,
+    /// `true_front` in objective order (empty when the config gives none).
+    pub true_front: Vec<Vec<f64>>,
+    /// Hypervolume of the true front (the most a sweep can reach), when given.
+    pub true_hypervolume: Option<f64>,
+    /// Inverted generational distance of the found returns to the true front, when given.
+    pub igd: Option<f64>,
     /// Wall time of the whole sweep.
     pub wall_seconds: f64,
 }
@@ -257,6 +274,41 @@ impl SweepConfig {
         }
         for s in &settings {
             apply(base, s, 0)?;
+        }
+        self.validate_true_front()
+    }
+
+    fn validate_true_front(&self) -> Result<(), ConfigError> {
+        if self.true_front.is_empty() {
+            return Ok(());
+        }
+        let names: Vec<&String> = self.true_front.keys().collect();
+        if !names.iter().copied().eq(self.reference_point.keys()) {
+            return Err(invalid(
+                "true_front",
+                &format!(
+                    "the objectives of reference_point, {:?}",
+                    self.reference_point.keys().collect::<Vec<_>>()
+                ),
+                names,
+            ));
+        }
+        let lengths: Vec<usize> = self.true_front.values().map(Vec::len).collect();
+        if lengths[0] == 0 || lengths.iter().any(|&n| n != lengths[0]) {
+            return Err(invalid(
+                "true_front",
+                "lists of one equal, non-zero length (one entry per point)",
+                lengths,
+            ));
+        }
+        for (name, values) in &self.true_front {
+            if values.iter().any(|v| !v.is_finite()) {
+                return Err(invalid(
+                    &format!("true_front.{name}"),
+                    "finite values",
+                    values,
+                ));
+            }
         }
         Ok(())
     }
@@ -419,10 +471,26 @@ pub async fn sweep(
     for i in non_dominated(&returns) {
         points[i].on_front = true;
     }
+    let true_front: Vec<Vec<f64>> = match objectives
+        .iter()
+        .map(|n| sweep.true_front.get(n))
+        .collect::<Option<Vec<_>>>()
+    {
+        Some(columns) if !columns.is_empty() => (0..columns[0].len())
+            .map(|i| columns.iter().map(|c| c[i]).collect())
+            .collect(),
+        _ => Vec::new(),
+    };
+    let known = !true_front.is_empty();
     let summary = SweepSummary {
         dir: dir.clone(),
         hypervolume: hypervolume(&returns, &reference),
+        seed_fronts: seeds::seed_fronts(&points, &reference),
+        settings: seeds::setting_spreads(&points),
         expected_utility: expected_utility(&returns, &simplex_weights(objectives.len(), 100)),
+        true_hypervolume: known.then(|| hypervolume(&true_front, &reference)),
+        igd: (known && !returns.is_empty()).then(|| igd(&returns, &true_front)),
+        true_front,
         reference_point: reference,
         objectives,
         points,
@@ -480,5 +548,38 @@ mod tests {
         // Step 0.15 / 99; w_task complements it.
         assert!((settings[1]["action_norm"] - 0.15 / 99.0).abs() < 1e-15);
         assert!((settings[1]["task"] - (1.0 - 0.15 / 99.0)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_true_front_must_name_the_objectives_with_equal_lengths() {
+        let config = |front: &str| {
+            let text = format!(
+                r#"
+                name = "t"
+                base = "b.toml"
+                reference_point = {{ time = -25.0, treasure = 0.0 }}
+                true_front = {front}
+                [grid]
+                kind = "epsilon"
+                product = {{ time = [0.01] }}
+            "#
+            );
+            toml::from_str::<SweepConfig>(&text)
+                .unwrap()
+                .validate_true_front()
+        };
+        assert!(config("{ time = [-1, -3], treasure = [0.7, 8.2] }").is_ok());
+        let err = |front: &str| config(front).unwrap_err().to_string();
+        let e = err("{ time = [-1], reward = [0.7] }");
+        assert!(e.contains("true_front") && e.contains("reward"), "{e}");
+        let e = err("{ time = [-1, -3], treasure = [0.7] }");
+        assert!(e.contains("true_front") && e.contains("[2, 1]"), "{e}");
+        let e = err("{ time = [], treasure = [] }");
+        assert!(e.contains("non-zero"), "{e}");
+        let e = err("{ time = [-1], treasure = [nan] }");
+        assert!(
+            e.contains("true_front.treasure") && e.contains("NaN"),
+            "{e}"
+        );
     }
 }

@@ -4,8 +4,9 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use super::{SweepConfig, SweepPoint, SweepSummary, invalid};
+use super::{SweepConfig, SweepSummary, invalid};
 use crate::metrics::write_json_atomic;
+use crate::pareto::attainment_surface;
 use crate::plot::{Figure, Series, SeriesKind};
 use crate::train::TrainError;
 
@@ -55,28 +56,7 @@ pub(super) fn write_outputs(sweep: &SweepConfig, s: &SweepSummary) -> Result<(),
     std::fs::write(&front_csv, front.join("\n") + "\n").map_err(io(front_csv.clone()))?;
     write_json_atomic(&s.dir.join("summary.json"), s).map_err(io(s.dir.join("summary.json")))?;
     if s.objectives.len() >= 2 {
-        let xy = |p: &SweepPoint| (p.eval_return[0], p.eval_return[1]);
-        let mut front: Vec<(f64, f64)> = s.points.iter().filter(|p| p.on_front).map(xy).collect();
-        front.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let figure = Figure {
-            title: format!("{}: hypervolume {:.1}", sweep.name, s.hypervolume),
-            x_label: format!("{} return", s.objectives[0]),
-            y_label: format!("{} return", s.objectives[1]),
-            series: vec![
-                Series {
-                    label: "all runs".into(),
-                    points: s.points.iter().map(xy).collect(),
-                    kind: SeriesKind::Markers,
-                },
-                Series {
-                    label: "non-dominated".into(),
-                    points: front,
-                    kind: SeriesKind::Line,
-                },
-            ],
-            log_x: false,
-        };
-        crate::plot::save(&figure, &s.dir.join("front"))?;
+        crate::plot::save(&front_figure(&sweep.name, s), &s.dir.join("front"))?;
     }
     if let Some(rp) = &sweep.ratio_plot {
         let y = s
@@ -95,17 +75,33 @@ pub(super) fn write_outputs(sweep: &SweepConfig, s: &SweepSummary) -> Result<(),
                 .or_default()
                 .push((ratio, p.eval_return[y]));
         }
-        let series = by_series
+        // Steps, not lines: between two tried ratios nothing says the policy collects
+        // anything in between (DST's treasures are discrete).
+        let mut series: Vec<Series> = by_series
             .into_iter()
             .map(|(label, mut points)| {
                 points.sort_by(|a, b| a.0.total_cmp(&b.0));
                 Series {
                     label,
                     points,
-                    kind: SeriesKind::Line,
+                    kind: SeriesKind::Steps,
                 }
             })
             .collect();
+        if !s.true_front.is_empty() {
+            let x = series
+                .iter()
+                .flat_map(|r| r.points.iter().map(|p| p.0))
+                .fold(f64::INFINITY, f64::min);
+            series.insert(
+                0,
+                Series {
+                    label: format!("{} on the true front", rp.y_objective),
+                    points: s.true_front.iter().map(|p| (x, p[y])).collect(),
+                    kind: SeriesKind::Levels,
+                },
+            );
+        }
         let figure = Figure {
             title: format!("{}: {} reached vs ε ratio", sweep.name, rp.y_objective),
             x_label: format!("ε_{} / ε_{}", rp.numerator, rp.denominator),
@@ -116,4 +112,50 @@ pub(super) fn write_outputs(sweep: &SweepConfig, s: &SweepSummary) -> Result<(),
         crate::plot::save(&figure, &s.dir.join("ratio"))?;
     }
     Ok(())
+}
+
+/// The first two objectives' returns: the region the found front dominates above the
+/// reference point (a staircase, which invents no trade-off between points), every run
+/// as a marker per seed, the reference point, and the true front when known.
+fn front_figure(name: &str, s: &SweepSummary) -> Figure {
+    let xy = |p: &[f64]| (p[0], p[1]);
+    let reference = xy(&s.reference_point);
+    let all: Vec<(f64, f64)> = s.points.iter().map(|p| xy(&p.eval_return)).collect();
+    let mut series = vec![Series {
+        label: "dominated region of the found front".into(),
+        points: attainment_surface(&all, reference),
+        kind: SeriesKind::Region,
+    }];
+    if !s.true_front.is_empty() {
+        series.push(Series {
+            label: "true Pareto front".into(),
+            points: s.true_front.iter().map(|p| xy(p)).collect(),
+            kind: SeriesKind::OpenMarkers,
+        });
+    }
+    let mut by_seed: BTreeMap<u64, Vec<(f64, f64)>> = BTreeMap::new();
+    for p in &s.points {
+        by_seed.entry(p.seed).or_default().push(xy(&p.eval_return));
+    }
+    series.extend(by_seed.into_iter().map(|(seed, points)| Series {
+        label: format!("runs, seed {seed}"),
+        points,
+        kind: SeriesKind::Markers,
+    }));
+    series.push(Series {
+        label: "reference point".into(),
+        points: vec![reference],
+        kind: SeriesKind::Crosses,
+    });
+    let mut title = format!("{name}: hypervolume {:.1}", s.hypervolume);
+    if let Some(best) = s.true_hypervolume {
+        title.push_str(&format!(" of {best:.1}"));
+    }
+    Figure {
+        title,
+        x_label: format!("{} return", s.objectives[0]),
+        y_label: format!("{} return", s.objectives[1]),
+        series,
+        log_x: false,
+    }
 }
