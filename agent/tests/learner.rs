@@ -118,3 +118,98 @@ fn policy_snapshot_drives_an_actor_policy() {
             .contains("missing")
     );
 }
+
+/// `random_batch` where snippet 1 terminates at step 0 and snippet 2 is cut by a time
+/// limit at step 0 (discount 1, so s_1 is its real last observation); the later steps
+/// of both are padding, as the adder writes it.
+fn padded_batch(learner: &agent::algo::Learner, seed: i64) -> agent::algo::SnippetBatch {
+    let batch = random_batch(learner, seed);
+    let t = batch.len();
+    for b in [1, 2] {
+        let _ = batch.valid.narrow(0, 1, t - 1).select(1, b).fill_(0.0);
+        let _ = batch.discounts.narrow(0, 1, t - 1).select(1, b).fill_(0.0);
+        let _ = batch.rewards.narrow(0, 1, t - 1).select(1, b).fill_(0.0);
+        let _ = batch
+            .behaviour_log_probs
+            .narrow(0, 1, t - 1)
+            .select(1, b)
+            .fill_(f64::from(agent::replay::adder::PAD_LOG_PROB));
+    }
+    let _ = batch.discounts.get(0).select(0, 1).fill_(0.0);
+    batch
+}
+
+/// `batch` with observation rows `from..=T` of snippet `b` replaced by large noise.
+fn scramble_rows(
+    batch: &agent::algo::SnippetBatch,
+    b: i64,
+    from: i64,
+) -> agent::algo::SnippetBatch {
+    let observations = batch.observations.copy();
+    let rows = observations.size()[0] - from;
+    let noise = Tensor::randn([rows, observations.size()[2]], (Kind::Float, Device::Cpu)) * 50.0;
+    let _ = observations
+        .narrow(0, from, rows)
+        .select(1, b)
+        .copy_(&noise);
+    agent::algo::SnippetBatch {
+        observations,
+        actions: batch.actions.copy(),
+        rewards: batch.rewards.copy(),
+        discounts: batch.discounts.copy(),
+        behaviour_log_probs: batch.behaviour_log_probs.copy(),
+        valid: batch.valid.copy(),
+    }
+}
+
+/// Two steps of identically built learners on `a` and `b`, with the same random draws:
+/// equal when the batches differ only where the learner must not look.
+fn same_steps(
+    make: impl Fn() -> agent::algo::Learner,
+    a: &agent::algo::SnippetBatch,
+    b: &agent::algo::SnippetBatch,
+) -> bool {
+    let run = |batch: &agent::algo::SnippetBatch| {
+        let mut learner = make();
+        tch::manual_seed(99);
+        let stats: Vec<_> = (0..2).map(|_| learner.step(batch).unwrap()).collect();
+        let strip = |s: &agent::algo::LearnerStats| {
+            (
+                s.critic_loss.clone(),
+                s.temperature.clone(),
+                s.estep_kl.clone(),
+                s.alpha.clone(),
+                s.policy_kl.clone(),
+            )
+        };
+        (
+            stats.iter().map(strip).collect::<Vec<_>>(),
+            learner.policy_snapshot(),
+        )
+    };
+    run(a) == run(b)
+}
+
+#[test]
+fn padded_steps_change_neither_losses_nor_updates() {
+    tch::set_num_threads(1);
+    let make = || continuous_learner_with(|cfg| cfg.mpo.learning_rate = 1e-2);
+    let batch = padded_batch(&make(), 21);
+    // Snippet 1: s_1 is terminal and s_2, s_3 padding; snippet 2: s_2, s_3 padding.
+    let scrambled = scramble_rows(&scramble_rows(&batch, 1, 1), 2, 2);
+    assert!(
+        same_steps(make, &batch, &scrambled),
+        "MO-MPO learned from padding"
+    );
+    // The check can fail: snippet 2's s_1 is the real state its last step bootstraps from.
+    assert!(!same_steps(make, &batch, &scramble_rows(&batch, 2, 1)));
+
+    let make = common::movmpo_mocap_learner;
+    let batch = padded_batch(&make(), 22);
+    let scrambled = scramble_rows(&scramble_rows(&batch, 1, 1), 2, 2);
+    assert!(
+        same_steps(make, &batch, &scrambled),
+        "MO-V-MPO learned from padding"
+    );
+    assert!(!same_steps(make, &batch, &scramble_rows(&batch, 2, 1)));
+}

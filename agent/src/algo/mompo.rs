@@ -7,11 +7,14 @@
 //!    critic scores them: `Q' [M, N, C]`. V(s) is their mean (pi_old-weighted sum for
 //!    categorical). Retrace targets for the T*B taken pairs use the target critic, the
 //!    target policy's log-probabilities and c = min(1, pi_old/b). The online critic is
-//!    regressed on them (0.5 * squared error, mean over pairs, summed over heads), one
-//!    Adam step.
-//! 2. **E-step** (eqs. 32-34) on the same N states and samples: Q_k is the target
-//!    critic's head for learned objectives and `-||a||_2` for the action norm; weights
-//!    q_k and the temperature duals (`estep.rs`).
+//!    regressed on them (0.5 * squared error, mean over real pairs, summed over heads),
+//!    one Adam step. Padding after an episode's end (`valid` 0) is not regressed.
+//! 2. **E-step** (eqs. 32-34) on the same samples at the real states (`real_states`):
+//!    the states acted from, plus a last state bootstrapped into from a real,
+//!    non-terminal step; padding and terminal observations are never acted from, so
+//!    no policy is fitted there. Q_k is the target critic's head for learned
+//!    objectives and `-||a||_2` for the action norm; weights q_k and the temperature
+//!    duals (`estep.rs`).
 //! 3. **M-step** (eqs. 16-20): weighted maximum likelihood with the decoupled trust
 //!    region (`mstep.rs`); one Adam step on the policy and one on all duals, then the
 //!    dual floor (`dual.rs`).
@@ -30,6 +33,35 @@ use super::state::{
 use crate::nets::{GaussianParams, PolicyOutput};
 use std::time::Instant;
 use tch::{Kind, Tensor};
+
+/// Indices of the real states among the N = (T+1)B rows of a snippet batch, or `None`
+/// when every row is real. Row (t, b) is real when step t is real (`valid`), or when
+/// step t-1 is real and not terminal (s_t is then the state it bootstraps from: the
+/// next state of a step, or the last observation of a time-limited episode).
+/// # Shapes
+/// `valid [T, B]`, `discounts [T, B] -> [R] i64`.
+pub fn real_states(valid: &Tensor, discounts: &Tensor) -> Option<Tensor> {
+    let b = valid.size()[1];
+    let acted = Tensor::cat(
+        &[valid.shallow_clone(), valid.zeros_like().narrow(0, 0, 1)],
+        0,
+    );
+    let bootstrapped = Tensor::cat(&[valid.zeros_like().narrow(0, 0, 1), valid * discounts], 0);
+    let real = acted.maximum(&bootstrapped).gt(0.5).reshape([-1]);
+    if real.all().int64_value(&[]) == 1 {
+        return None;
+    }
+    debug_assert_eq!(real.size()[0] % b, 0);
+    Some(real.nonzero().squeeze_dim(-1))
+}
+
+/// `0.5 * mean over real rows of err^2`, per column.
+/// # Shapes
+/// `err [N, C]`, `valid [N]` (1 real, 0 padding) `-> [C]`.
+pub fn masked_half_mse(err: &Tensor, valid: &Tensor) -> Tensor {
+    let real = valid.sum(Kind::Float).clamp_min(1.0);
+    (err.square() * valid.unsqueeze(-1)).sum_dim_intlist(0, false, Kind::Float) / real * 0.5
+}
 
 impl Learner {
     /// Q-values for the E-step, `[M, N, K]`, from critic heads and closed forms.
@@ -106,7 +138,9 @@ impl Learner {
             }
             .log_prob(&act_taken)
             .reshape([t_len, b]);
-            let importance = importance_weights(&target_log_probs, &batch.behaviour_log_probs);
+            // c = 0 at padding cuts the trace exactly (PAD_LOG_PROB alone leaves ~e^-60).
+            let importance =
+                importance_weights(&target_log_probs, &batch.behaviour_log_probs) * &batch.valid;
             let rewards = self.critic_rewards(&batch.rewards);
             let targets = retrace_targets(&RetraceInputs {
                 q_taken: &q_taken,
@@ -126,12 +160,22 @@ impl Learner {
         });
         let (target_out, samples, critic_q, log_prior, targets) = eval;
         let q_online = critic.forward(&obs_taken, &act_taken);
-        let per_head = (q_online - &targets)
-            .square()
-            .mean_dim(0, false, Kind::Float)
-            * 0.5;
+        let per_head = masked_half_mse(&(q_online - &targets), &batch.valid.reshape([t_len * b]));
         self.update_critics(&per_head.sum(Kind::Float));
         let policy_evaluation_ms = ms_since(start, self.device);
+
+        // The E- and M-steps see only real states (all of them, in most batches).
+        let real = real_states(&batch.valid, &batch.discounts);
+        let (obs_real, target_out, samples, critic_q, log_prior) = match &real {
+            None => (obs_all, target_out, samples, critic_q, log_prior),
+            Some(index) => (
+                obs_all.index_select(0, index),
+                target_out.rows(index),
+                samples.index_select(1, index),
+                critic_q.index_select(1, index),
+                log_prior.map(|p| p.index_select(1, index)),
+            ),
+        };
 
         // 2. E-step (eqs. 32-34).
         let start = Instant::now();
@@ -146,7 +190,7 @@ impl Learner {
 
         // 3. M-step (eqs. 16-20) and dual updates.
         let start = Instant::now();
-        let online_out = self.policy.forward(&obs_all);
+        let online_out = self.policy.forward(&obs_real);
         let policy_kl = self.fit_policy(
             &online_out,
             &target_out,

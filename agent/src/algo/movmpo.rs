@@ -14,7 +14,8 @@
 //!    among real steps, weights over the batch and the temperature duals
 //!    (`estep::advantage_estep`).
 //! 3. **Step 2** (D.2.2, eq. 25): weighted maximum likelihood of the taken actions with
-//!    the decoupled trust region against pi_old, the target policy (Table 5 betas);
+//!    the decoupled trust region against pi_old, the target policy (Table 5 betas),
+//!    both over the real steps only (padding is never acted from);
 //!    one Adam step on the policy and one on the duals. A latent policy torso (A.3)
 //!    evaluates online and target policies with the same latent noise.
 //! 4. Every `target_update_period` steps pi_old is copied from the online policy.
@@ -24,6 +25,7 @@
 
 use super::batch::SnippetBatch;
 use super::estep::advantage_estep;
+use super::mompo::masked_half_mse;
 use super::objectives::QSource;
 use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since,
@@ -98,10 +100,7 @@ impl Learner {
         let advantages = (&targets - v_taken.detach()).reshape([n, heads]);
         let valid = batch.valid.reshape([n]);
         let real_steps = valid.sum(Kind::Float).clamp_min(1.0);
-        let per_head = ((v_taken - &targets).square().reshape([n, heads]) * valid.unsqueeze(-1))
-            .sum_dim_intlist(0, false, Kind::Float)
-            / &real_steps
-            * 0.5;
+        let per_head = masked_half_mse(&(v_taken - &targets).reshape([n, heads]), &valid);
         let value_mean = (values.detach().narrow(0, 0, t_len).reshape([n, heads])
             * valid.unsqueeze(-1))
         .sum_dim_intlist(0, false, Kind::Float)
@@ -130,25 +129,36 @@ impl Learner {
             &self.epsilon,
             self.cfg.vmpo.top_k_fraction,
         );
-        // fit_policy averages over the N pairs; the weights sum to 1 over the batch.
-        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float) * n as f64;
+        // Step 2 fits the policy, and bounds its KL, at real steps only: padding carries
+        // no weight and is never acted from.
+        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
+        let taken = batch.actions.flatten(0, 1);
+        let (obs_real, taken, weights) = if real_steps.int64_value(&[]) < n {
+            let index = valid.gt(0.5).nonzero().squeeze_dim(-1);
+            (
+                obs_taken.index_select(0, &index),
+                taken.index_select(0, &index),
+                weights.index_select(0, &index),
+            )
+        } else {
+            (obs_taken, taken, weights)
+        };
+        // fit_policy averages over the pairs; the weights sum to 1 over the batch.
+        let n_real = obs_real.size()[0];
+        let weights = weights * n_real as f64;
         let e_step_ms = ms_since(start, self.device);
 
         // 3. Step 2 (D.2.2, eq. 25) and dual updates.
         let start = Instant::now();
-        let noise = self.policy.latent_noise(n);
+        let noise = self.policy.latent_noise(n_real);
         let target_out = tch::no_grad(|| {
             self.target_policy
-                .forward_with_noise(&obs_taken, noise.as_ref())
+                .forward_with_noise(&obs_real, noise.as_ref())
         });
-        let online_out = self.policy.forward_with_noise(&obs_taken, noise.as_ref());
+        let online_out = self.policy.forward_with_noise(&obs_real, noise.as_ref());
         let (actions, weights) = match &online_out {
-            PolicyOutput::Gaussian(_) => (
-                batch.actions.flatten(0, 1).unsqueeze(0),
-                weights.unsqueeze(0),
-            ),
+            PolicyOutput::Gaussian(_) => (taken.unsqueeze(0), weights.unsqueeze(0)),
             PolicyOutput::Categorical(logits) => {
-                let taken = batch.actions.flatten(0, 1);
                 let one_hot = taken
                     .one_hot(logits.size()[1])
                     .to_kind(Kind::Float)

@@ -125,6 +125,19 @@ pub enum PolicyOutput {
 }
 
 impl PolicyOutput {
+    /// The rows (states) at `index`. # Shapes `[B, ...]`, `index [R] i64 -> [R, ...]`.
+    pub fn rows(&self, index: &Tensor) -> Self {
+        match self {
+            PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
+                mean: g.mean.index_select(0, index),
+                std: g.std.index_select(0, index),
+            }),
+            PolicyOutput::Categorical(logits) => {
+                PolicyOutput::Categorical(logits.index_select(0, index))
+            }
+        }
+    }
+
     /// Log-probability of taken actions.
     /// # Shapes
     /// Gaussian `[B, D] f32`, categorical `[B] i64` `-> [B]`.
