@@ -148,7 +148,7 @@ fn scramble_rows(
     let observations = batch.observations.copy();
     let rows = observations.size()[0] - from;
     let noise = Tensor::randn([rows, observations.size()[2]], (Kind::Float, Device::Cpu)) * 50.0;
-    let _ = observations
+    observations
         .narrow(0, from, rows)
         .select(1, b)
         .copy_(&noise);
