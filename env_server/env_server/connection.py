@@ -93,12 +93,14 @@ class Channel:
             raise ValueError("tls_client_cert, tls_client_key: expected both or neither, got one")
         if token is not None and token_file is not None:
             raise ValueError("token, token_file: expected at most one, got both")
-        scheme, _, target = address.rpartition("://")
+        # http:// and https:// choose the transport; any other target (host:port,
+        # unix:...) goes to grpc as it is.
+        scheme, sep, target = address.partition("://")
+        if not sep or scheme not in ("http", "https"):
+            scheme, target = "", address
         implied = tls_ca is not None or tls_client_cert is not None
-        if scheme not in ("", "http", "https") or (scheme == "http" and implied):
-            raise ValueError(
-                f"address: expected host:port or https://host:port (http:// only without TLS files), got {address!r}"
-            )
+        if scheme == "http" and implied:
+            raise ValueError(f"address: expected host:port or https://... with TLS files, got {address!r}")
         if scheme == "https" or (scheme == "" and implied):
             credentials = grpc.ssl_channel_credentials(
                 root_certificates=_read(tls_ca),

@@ -231,3 +231,17 @@ def test_tls_flags_must_come_together(certs: dict[str, pathlib.Path]) -> None:
     assert proc.returncode == 2 and "--tls-cert and --tls-key: expected both or neither" in proc.stderr
     proc = _start("--tls-cert", str(certs["server.key"]), "--tls-key", str(certs["server.key"]))
     assert proc.returncode == 2 and "--tls-cert: expected a PEM file with a 'CERTIFICATE' block" in proc.stderr
+
+
+def test_client_connection_arguments_are_checked(tmp_path: pathlib.Path, certs: dict[str, pathlib.Path]) -> None:
+    with pytest.raises(ValueError, match="expected host:port or https://... with TLS files, got 'http://"):
+        list_envs("http://127.0.0.1:1", tls_ca=certs["ca.pem"])
+    with pytest.raises(ValueError, match="token, token_file: expected at most one"):
+        list_envs("127.0.0.1:1", token="t" * 20, token_file=certs["alice.token"])
+    with pytest.raises(ValueError, match="tls_client_cert, tls_client_key: expected both or neither"):
+        list_envs("127.0.0.1:1", tls_client_cert=certs["client.pem"])
+    assert read_token_file(certs["alice.token"]) == certs["tokens"].read_text().splitlines()[0].split(":")[1]
+    both = tmp_path / "both"
+    both.write_text(certs["tokens"].read_text())
+    with pytest.raises(ValueError, match="expected exactly one token line in .*, got 2"):
+        read_token_file(both)

@@ -14,7 +14,7 @@ use agent::error::{EnvError, StatusKind};
 use agent::eval::evaluate_checkpoint;
 use agent::train::{TrainOptions, train};
 use integration_tests::smoke_config;
-use rcgen::{BasicConstraints, CertificateParams, IsCa, Issuer, KeyPair};
+use rcgen::{BasicConstraints, CertificateParams, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair};
 
 const TOKEN: &str = "learner:e2e-token-0123456789abcdef";
 
@@ -23,6 +23,7 @@ struct Pki {
     ca: PathBuf,
     server_cert: PathBuf,
     server_key: PathBuf,
+    issuer: Issuer<'static, KeyPair>,
 }
 
 fn write_pki(dir: &Path, name: &str) -> Pki {
@@ -40,6 +41,7 @@ fn write_pki(dir: &Path, name: &str) -> Pki {
         ca: dir.join(format!("{name}-ca.pem")),
         server_cert: dir.join(format!("{name}-server.pem")),
         server_key: dir.join(format!("{name}-server.key")),
+        issuer,
     };
     std::fs::write(&pki.ca, ca_cert.pem()).unwrap();
     std::fs::write(&pki.server_cert, server_cert.pem()).unwrap();
@@ -47,17 +49,35 @@ fn write_pki(dir: &Path, name: &str) -> Pki {
     pki
 }
 
+/// A client certificate the PKI's CA signed, as (certificate, key) files.
+fn write_client_cert(pki: &Pki, dir: &Path) -> (PathBuf, PathBuf) {
+    let key = KeyPair::generate().unwrap();
+    let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    params.extended_key_usages = vec![ExtendedKeyUsagePurpose::ClientAuth];
+    let cert = params.signed_by(&key, &pki.issuer).unwrap();
+    let paths = (dir.join("client.pem"), dir.join("client.key"));
+    std::fs::write(&paths.0, cert.pem()).unwrap();
+    std::fs::write(&paths.1, key.serialize_pem()).unwrap();
+    paths
+}
+
 async fn tls_server(pki: &Pki, tokens: &Path) -> LocalServer {
+    tls_server_with(pki, tokens, &[]).await
+}
+
+async fn tls_server_with(pki: &Pki, tokens: &Path, more: &[String]) -> LocalServer {
     let path = |p: &Path| p.display().to_string();
+    let mut extra_args = vec![
+        "--tls-cert".into(),
+        path(&pki.server_cert),
+        "--tls-key".into(),
+        path(&pki.server_key),
+        "--auth-token-file".into(),
+        path(tokens),
+    ];
+    extra_args.extend_from_slice(more);
     let options = ServerOptions {
-        extra_args: vec![
-            "--tls-cert".into(),
-            path(&pki.server_cert),
-            "--tls-key".into(),
-            path(&pki.server_key),
-            "--auth-token-file".into(),
-            path(tokens),
-        ],
+        extra_args,
         ..ServerOptions::default()
     };
     LocalServer::start(&options)
@@ -172,5 +192,44 @@ async fn a_wrong_token_or_a_foreign_ca_fails_clearly() {
         matches!(&err, EnvError::Connect { reason, .. } if reason.starts_with("TLS handshake failed")),
         "not retried as if the server were down: {err}"
     );
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutual_tls_needs_the_client_certificate() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = write_pki(dir.path(), "good");
+    let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
+    let client_ca = ["--tls-client-ca".to_string(), pki.ca.display().to_string()];
+    let server = tls_server_with(&pki, &tokens, &client_ca).await;
+    let (cert, key) = write_client_cert(&pki, dir.path());
+    let mut connection = ConnectionConfig {
+        tls_ca_file: Some(pki.ca.clone()),
+        tls_client_cert_file: Some(cert),
+        tls_client_key_file: Some(key),
+        token_file: Some(tokens.clone()),
+    };
+    // A bare host:port is TLS when a CA is given.
+    let client = EnvClient::connect_with_credentials(server.address(), &connection.load().unwrap())
+        .await
+        .unwrap();
+    assert!(
+        client
+            .list_envs()
+            .await
+            .unwrap()
+            .iter()
+            .any(|e| e.env_id == "dst")
+    );
+
+    connection.tls_client_cert_file = None;
+    connection.tls_client_key_file = None;
+    let client = EnvClient::connect_with_credentials(server.address(), &connection.load().unwrap())
+        .await
+        .unwrap();
+    let err = client.list_envs().await.expect_err("no client certificate");
+    // Said plainly and not retried as if the server were down.
+    assert!(err.to_string().contains("CertificateRequired"), "{err}");
+    assert_ne!(err.status_kind(), Some(StatusKind::Unavailable), "{err}");
     server.stop().await.unwrap();
 }

@@ -95,17 +95,24 @@ pub(super) fn endpoint(address: &str, credentials: &Credentials) -> Result<Endpo
 /// A connect error that retrying cannot fix: rustls rejected the handshake (a
 /// certificate the CA did not sign or a name it does not cover, "invalid peer
 /// certificate"; a plaintext server, "received corrupt message"; an alert from the
-/// server), as opposed to a server that is not listening yet. rustls's error type is
-/// not re-exported by tonic, so its messages are matched; a server that refuses a
-/// missing client certificate does so after the TLS 1.3 handshake, on the first call.
+/// server, e.g. that it requires a client certificate), as opposed to a server that is
+/// not listening yet. rustls's error type is not re-exported by tonic, so its messages
+/// are matched.
 pub(super) fn is_permanent(error: &tonic::transport::Error) -> bool {
+    rejected_by_tls(error)
+}
+
+/// Whether `error` or one of its sources is a rustls rejection (see [`is_permanent`]).
+/// Under mutual TLS a server refuses a missing client certificate after the TLS 1.3
+/// handshake, so that rejection arrives with the first call, as its status's source.
+pub(super) fn rejected_by_tls(error: &(dyn std::error::Error + 'static)) -> bool {
     const RUSTLS: [&str; 4] = [
         "invalid peer certificate",
         "received corrupt message",
         "received fatal alert",
         "peer is incompatible",
     ];
-    let mut source: Option<&(dyn std::error::Error + 'static)> = Some(error);
+    let mut source = Some(error);
     while let Some(e) = source {
         let text = e.to_string();
         if RUSTLS.iter().any(|needle| text.contains(needle)) {

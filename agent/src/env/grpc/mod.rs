@@ -85,6 +85,9 @@ fn status_kind(code: tonic::Code) -> StatusKind {
 /// never cancels its own calls (a dropped call observes no status), so CANCELLED
 /// always means the connection went away.
 fn is_unavailable(status: &tonic::Status) -> bool {
+    if channel::rejected_by_tls(status) {
+        return false; // the certificates will not change on a retry
+    }
     match status.code() {
         tonic::Code::Unavailable | tonic::Code::Cancelled => true,
         tonic::Code::Unknown => std::error::Error::source(status).is_some(),
@@ -98,10 +101,15 @@ fn status_error(call: &'static str, status: &tonic::Status) -> EnvError {
     } else {
         status_kind(status.code())
     };
+    // A transport failure's status says only "transport error"; its sources say why.
+    let message = match std::error::Error::source(status) {
+        Some(source) => format!("{}: {}", status.message(), chain(source)),
+        None => status.message().to_string(),
+    };
     EnvError::Status {
         call,
         code,
-        message: status.message().to_string(),
+        message,
     }
 }
 
