@@ -17,6 +17,11 @@ pub enum StatusKind {
     Internal,
     /// UNAVAILABLE: the server cannot be reached (retried with backoff).
     Unavailable,
+    /// UNAUTHENTICATED: the server takes bearer tokens and this client's is missing or
+    /// unknown to it (`--token-file`, `env.connection.token_file`).
+    Unauthenticated,
+    /// UNIMPLEMENTED: the server does not know the call (an older protocol revision).
+    Unimplemented,
     /// Any other code.
     Other,
 }
@@ -71,6 +76,16 @@ pub enum EnvError {
         expected: DType,
         /// Actual element type.
         got: DType,
+    },
+    /// A TLS or token file of the connection settings could not be used.
+    #[error("env.connection.{field} {path}: {reason}")]
+    Credentials {
+        /// The `ConnectionConfig` field that names the file.
+        field: &'static str,
+        /// The file.
+        path: std::path::PathBuf,
+        /// What was expected and what was found (never the file's content).
+        reason: String,
     },
     /// Starting or talking to a local env_server process failed.
     #[error("env_server process: {0}")]

@@ -9,6 +9,7 @@ use tch::{Device, Tensor};
 
 use crate::actor::ActionMap;
 use crate::algo::Learner;
+use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::EnvClient;
 use crate::env::{Env, EpisodeSummary};
 use crate::error::EnvError;
@@ -65,10 +66,13 @@ pub struct EvalReport {
 }
 
 /// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
-/// `checkpoints/step_<n>` directory) with the deterministic policy.
+/// `checkpoints/step_<n>` directory) with the deterministic policy, against
+/// `addresses` reached as `connection` says (not the run's own `env.connection`: the
+/// servers may differ).
 pub async fn evaluate_checkpoint(
     path: &Path,
     addresses: &[String],
+    connection: &ConnectionConfig,
     episodes: usize,
 ) -> Result<EvalReport, TrainError> {
     let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
@@ -88,7 +92,7 @@ pub async fn evaluate_checkpoint(
     policy
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
-    let clients = connect_all(addresses).await?;
+    let clients = connect_all(addresses, connection).await?;
     let spec = probe_spec(&clients[0], &cfg).await?;
     drop(learner);
     let done = evaluate(&clients[0], &cfg, policy, episodes).await?;

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use agent::config::DeviceChoice;
+use agent::env::connection::ConnectionConfig;
 use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
@@ -13,7 +14,7 @@ use agent::metrics::{format_value, format_vector};
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
 use agent::train::{TrainOptions, TrainSummary, train};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
@@ -36,9 +37,12 @@ enum Command {
         /// Continue the run in this directory from its latest checkpoint (reads its config.toml).
         #[arg(long)]
         resume: Option<PathBuf>,
-        /// Server address host:port (repeatable); overrides the config's servers.
+        /// Server address host:port or https://host:port (repeatable); overrides the
+        /// config's servers.
         #[arg(long = "server")]
         servers: Vec<String>,
+        #[command(flatten)]
+        connection: ConnectionArgs,
         /// Override run.total_env_steps.
         #[arg(long)]
         total_env_steps: Option<u64>,
@@ -55,9 +59,12 @@ enum Command {
         /// Sweep file, e.g. configs/sweeps/dst.toml.
         #[arg(long)]
         config: PathBuf,
-        /// Server address host:port (repeatable); default: the base config's, or a local server.
+        /// Server address host:port or https://host:port (repeatable); default: the base
+        /// config's, or a local server.
         #[arg(long = "server")]
         servers: Vec<String>,
+        #[command(flatten)]
+        connection: ConnectionArgs,
         /// Override learner.device of every run.
         #[arg(long, value_enum)]
         device: Option<DeviceChoice>,
@@ -70,21 +77,31 @@ enum Command {
         /// Episodes to run.
         #[arg(long, default_value_t = 10)]
         episodes: usize,
-        /// Server address host:port (repeatable); default: a local server.
+        /// Server address host:port or https://host:port (repeatable); default: a local
+        /// server.
         #[arg(long = "server")]
         servers: Vec<String>,
+        /// How to reach --server (the run's own env.connection is not used).
+        #[command(flatten)]
+        connection: ConnectionArgs,
     },
     /// List the envs a server offers, with their objectives.
     Envs {
-        /// Server address host:port. Omitted: start a local server for the listing.
+        /// Server address host:port or https://host:port. Omitted: start a local server
+        /// for the listing.
         #[arg(long)]
         server: Option<String>,
+        #[command(flatten)]
+        connection: ConnectionArgs,
     },
     /// Step envs with uniformly random actions and print per-episode vector returns.
     Demo {
-        /// Server address host:port. Omitted: start a local server on 127.0.0.1.
+        /// Server address host:port or https://host:port. Omitted: start a local server
+        /// on 127.0.0.1.
         #[arg(long)]
         server: Option<String>,
+        #[command(flatten)]
+        connection: ConnectionArgs,
         /// Env ids to run, in order.
         #[arg(long = "env", default_values = ["dst", "humanoid-run"])]
         envs: Vec<String>,
@@ -98,6 +115,44 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
+}
+
+/// How to reach servers that take TLS or a bearer token (env_server's --tls-cert,
+/// --tls-client-ca, --auth-token-file); each flag replaces the config's
+/// `env.connection` field of the same meaning.
+#[derive(Debug, clap::Args)]
+struct ConnectionArgs {
+    /// PEM certificate of the CA that signed the servers' certificates; servers are
+    /// then reached over TLS (https).
+    #[arg(long, value_name = "PEM")]
+    tls_ca: Option<PathBuf>,
+    /// PEM client certificate, for servers that require mutual TLS (--tls-client-ca).
+    #[arg(long, value_name = "PEM", requires = "tls_client_key")]
+    tls_client_cert: Option<PathBuf>,
+    /// PEM private key of --tls-client-cert.
+    #[arg(long, value_name = "PEM", requires = "tls_client_cert")]
+    tls_client_key: Option<PathBuf>,
+    /// File holding the bearer token, one line (`token` or `name:token`).
+    #[arg(long, value_name = "FILE")]
+    token_file: Option<PathBuf>,
+}
+
+impl ConnectionArgs {
+    /// `base` with every flag that was given in place of its field.
+    fn apply(self, mut base: ConnectionConfig) -> ConnectionConfig {
+        let pairs = [
+            (self.tls_ca, &mut base.tls_ca_file),
+            (self.tls_client_cert, &mut base.tls_client_cert_file),
+            (self.tls_client_key, &mut base.tls_client_key_file),
+            (self.token_file, &mut base.token_file),
+        ];
+        for (flag, field) in pairs {
+            if flag.is_some() {
+                *field = flag;
+            }
+        }
+        base
+    }
 }
 
 fn main() -> Result<()> {
@@ -121,6 +176,7 @@ async fn run() -> Result<()> {
             config,
             resume,
             servers,
+            connection,
             total_env_steps,
             overrides,
             device,
@@ -141,7 +197,10 @@ async fn run() -> Result<()> {
             if !servers.is_empty() {
                 cfg.env.servers = servers;
             }
-            let (addresses, local) = server_addresses(&cfg.env.servers).await?;
+            cfg.env.connection = connection.apply(cfg.env.connection);
+            cfg.validate()?;
+            let (addresses, local) =
+                server_addresses(&cfg.env.servers, &cfg.env.connection).await?;
             let summary = train(
                 cfg,
                 &addresses,
@@ -164,6 +223,7 @@ async fn run() -> Result<()> {
         Command::Sweep {
             config,
             servers,
+            connection,
             device,
         } => {
             let (sweep_cfg, mut base) = SweepConfig::load(&config)
@@ -176,7 +236,9 @@ async fn run() -> Result<()> {
             } else {
                 servers
             };
-            let (addresses, local) = server_addresses(&configured).await?;
+            base.env.connection = connection.apply(base.env.connection);
+            base.validate()?;
+            let (addresses, local) = server_addresses(&configured, &base.env.connection).await?;
             let result = sweep(&sweep_cfg, &base, &addresses, true).await;
             if let Some(local) = local {
                 local.stop().await?;
@@ -263,9 +325,12 @@ async fn run() -> Result<()> {
             checkpoint,
             episodes,
             servers,
+            connection,
         } => {
-            let (addresses, local) = server_addresses(&servers).await?;
-            let report = evaluate_checkpoint(&checkpoint, &addresses, episodes).await;
+            let connection = connection.apply(ConnectionConfig::default());
+            connection.validate()?;
+            let (addresses, local) = server_addresses(&servers, &connection).await?;
+            let report = evaluate_checkpoint(&checkpoint, &addresses, &connection, episodes).await;
             if let Some(local) = local {
                 local.stop().await?;
             }
@@ -292,8 +357,8 @@ async fn run() -> Result<()> {
                 format_vector(&r.mean_discounted_return)
             );
         }
-        Command::Envs { server } => {
-            let (client, local) = connect(server).await?;
+        Command::Envs { server, connection } => {
+            let (client, local) = connect(server, connection).await?;
             print_envs(&client).await?;
             if let Some(local) = local {
                 local.stop().await?;
@@ -301,12 +366,13 @@ async fn run() -> Result<()> {
         }
         Command::Demo {
             server,
+            connection,
             envs,
             num_envs,
             episodes,
             seed,
         } => {
-            let (client, local) = connect(server).await?;
+            let (client, local) = connect(server, connection).await?;
             for env_id in &envs {
                 demo(&client, env_id, num_envs, episodes, seed).await?;
             }
@@ -319,10 +385,22 @@ async fn run() -> Result<()> {
 }
 
 /// Connect to `server`, or start a local one when none is given.
-async fn connect(server: Option<String>) -> Result<(EnvClient, Option<LocalServer>)> {
+async fn connect(
+    server: Option<String>,
+    connection: ConnectionArgs,
+) -> Result<(EnvClient, Option<LocalServer>)> {
+    let connection = connection.apply(ConnectionConfig::default());
+    connection.validate()?;
     match server {
-        Some(address) => Ok((EnvClient::connect(&address).await?, None)),
+        Some(address) => {
+            let credentials = connection.load()?;
+            Ok((
+                EnvClient::connect_with_credentials(&address, &credentials).await?,
+                None,
+            ))
+        }
         None => {
+            refuse_credentials_for_local(&connection)?;
             let local = LocalServer::start(&ServerOptions::default())
                 .await
                 .context("starting a local env_server")?;
@@ -332,11 +410,28 @@ async fn connect(server: Option<String>) -> Result<(EnvClient, Option<LocalServe
     }
 }
 
+/// A local server is plain loopback: TLS or token settings without a server are a
+/// mistake (probably a forgotten --server), not something to drop silently.
+fn refuse_credentials_for_local(connection: &ConnectionConfig) -> Result<()> {
+    if !connection.is_empty() {
+        bail!(
+            "--tls-ca/--tls-client-cert/--token-file (env.connection): expected with --server or \
+             env.servers, got no server (the local env_server a command starts is plain loopback \
+             and takes no token): {connection:?}"
+        );
+    }
+    Ok(())
+}
+
 /// The configured servers, or a local one started for this command.
-async fn server_addresses(configured: &[String]) -> Result<(Vec<String>, Option<LocalServer>)> {
+async fn server_addresses(
+    configured: &[String],
+    connection: &ConnectionConfig,
+) -> Result<(Vec<String>, Option<LocalServer>)> {
     if !configured.is_empty() {
         return Ok((configured.to_vec(), None));
     }
+    refuse_credentials_for_local(connection)?;
     let local = LocalServer::start(&ServerOptions::default())
         .await
         .context("starting a local env_server")?;

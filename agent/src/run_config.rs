@@ -21,6 +21,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, LearnerConfig};
+use crate::env::connection::ConnectionConfig;
 
 /// Which environment the actors step, and where.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,10 +32,14 @@ pub struct EnvConfig {
     /// Constructor keyword arguments passed to the server.
     #[serde(default)]
     pub kwargs: serde_json::Map<String, serde_json::Value>,
-    /// Servers (host:port) the actors connect to, round-robin; empty = start a local
-    /// env_server on 127.0.0.1 for the run.
+    /// Servers (`host:port`, `http://…` or `https://…`) the actors connect to,
+    /// round-robin; empty = start a local env_server on 127.0.0.1 for the run.
     #[serde(default)]
     pub servers: Vec<String>,
+    /// TLS and bearer-token files for `servers` (`[env.connection]`); they apply to
+    /// every server, and need `servers` (a local server is plain loopback).
+    #[serde(default, skip_serializing_if = "ConnectionConfig::is_empty")]
+    pub connection: ConnectionConfig,
     /// Env instances per actor session (B).
     #[serde(default = "default_num_envs")]
     pub num_envs: usize,
@@ -172,6 +177,7 @@ impl TrainConfig {
         if self.env.num_actors == 0 {
             return invalid("env.num_actors", ">= 1", "0".into());
         }
+        self.env.connection.validate()?;
         if self.env.workers >= self.env.num_envs {
             return invalid(
                 "env.workers",

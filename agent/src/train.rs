@@ -22,6 +22,7 @@ use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
+use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::EnvClient;
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
@@ -133,7 +134,7 @@ pub async fn train(
 ) -> Result<TrainSummary, TrainError> {
     let started = Instant::now();
     configure_threads(cfg.learner.num_threads);
-    let clients = connect_all(addresses).await?;
+    let clients = connect_all(addresses, &cfg.env.connection).await?;
     let spec = probe_spec(&clients[0], &cfg).await?;
     let dims = LearnerDims::from_spec(&spec)?;
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
@@ -391,10 +392,14 @@ pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> 
         .collect()
 }
 
-pub(crate) async fn connect_all(addresses: &[String]) -> Result<Vec<EnvClient>, EnvError> {
+pub(crate) async fn connect_all(
+    addresses: &[String],
+    connection: &ConnectionConfig,
+) -> Result<Vec<EnvClient>, EnvError> {
+    let credentials = connection.load()?;
     let mut clients = Vec::new();
     for address in addresses {
-        clients.push(EnvClient::connect(address).await?);
+        clients.push(EnvClient::connect_with_credentials(address, &credentials).await?);
     }
     if clients.is_empty() {
         return Err(EnvError::BadInput {

@@ -14,6 +14,7 @@ import sys
 
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry, RegistryError
+from env_server.security import SecurityConfigError, ServerTls, Tokens, check_exposure
 from env_server.service import FRONTS
 from env_server.task import Objective
 
@@ -47,6 +48,21 @@ def _parser() -> argparse.ArgumentParser:
         help="native front: microseconds a StepStream waits for its next request without sleeping; "
         "spends that much CPU per Step to cut B=1 latency on machines slow to wake (default 0: off)",
     )
+    p.add_argument("--tls-cert", help="PEM certificate chain: serve TLS (with --tls-key)")
+    p.add_argument("--tls-key", help="PEM private key of --tls-cert")
+    p.add_argument(
+        "--tls-client-ca", help="PEM CA certificate(s): mutual TLS, every client must present a certificate it signed"
+    )
+    p.add_argument(
+        "--auth-token-file",
+        help="file of bearer tokens, one per line, optionally name:token; every EnvService call must carry "
+        "'authorization: Bearer <token>' and sessions answer only the token that made them",
+    )
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="allow a non-loopback --host without TLS and a token (only on a network you trust)",
+    )
     p.add_argument("--list", action="store_true", help="print every env id with its objectives and exit")
     p.add_argument("--log-level", default="INFO", help="logging level for stderr (default INFO)")
     return p
@@ -71,6 +87,22 @@ def print_list(registry: Registry, out=sys.stdout) -> None:
             print("    objectives depend on the env (see its spec)", file=out)
 
 
+def _security(args: argparse.Namespace) -> tuple[ServerTls | None, Tokens | None]:
+    """The TLS material and tokens the flags name; refuses an exposed bind without them."""
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise SecurityConfigError(
+            f"--tls-cert and --tls-key: expected both or neither, got only {'--tls-cert' if args.tls_cert else '--tls-key'}"
+        )
+    if args.tls_client_ca is not None and args.tls_cert is None:
+        raise SecurityConfigError(
+            "--tls-client-ca: expected with --tls-cert and --tls-key (mutual TLS is TLS), got alone"
+        )
+    tls = None if args.tls_cert is None else ServerTls.load(args.tls_cert, args.tls_key, args.tls_client_ca)
+    tokens = None if args.auth_token_file is None else Tokens.load(args.auth_token_file)
+    check_exposure(args.host, tls, tokens, args.insecure)
+    return tls, tokens
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(
@@ -91,6 +123,12 @@ def main(argv: list[str] | None = None) -> int:
             f"{args.max_workers}",
             file=sys.stderr,
         )
+        return 2
+
+    try:
+        tls, tokens = _security(args)
+    except SecurityConfigError as exc:
+        print(f"env-server: {exc}", file=sys.stderr)
         return 2
 
     from env_server.server import resolve_front, serve  # grpc is only needed when serving
@@ -123,6 +161,9 @@ def main(argv: list[str] | None = None) -> int:
             max_workers=args.max_workers,
             front=front,
             busy_poll_us=args.busy_poll_us,
+            tls=tls,
+            tokens=tokens,
+            insecure=args.insecure,
             stop=stop,
         )
 

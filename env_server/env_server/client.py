@@ -8,13 +8,18 @@
 entries, like MO-Gymnasium (with a `reward_space` attribute). Failed calls raise
 `RemoteError` (or a subclass) carrying the gRPC code and message; only UNAVAILABLE
 is retried, with exponential backoff.
+
+A server on another host (started with --tls-cert and --auth-token-file) is reached
+with an `https://host:port` address (or `tls_ca=`, which implies TLS), `tls_ca=` the CA
+file that signed its certificate (default: the system's roots), `token=` or
+`token_file=` the bearer token, and for mutual TLS `tls_client_cert=` /
+`tls_client_key=`. Every function and class here takes these keywords.
 """
 
 from __future__ import annotations
 
 import json
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import grpc
@@ -23,7 +28,17 @@ import numpy as np
 
 from env_server import spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
-from env_server._proto.mo_env.v1 import env_pb2_grpc
+from env_server.connection import (
+    Channel,
+    FailedPreconditionError,
+    InvalidArgumentError,
+    NotFoundError,
+    PathLike,
+    RemoteError,
+    ResourceExhaustedError,
+    UnauthenticatedError,
+    read_token_file,
+)
 from env_server.session import Autoreset, SessionSpec
 from env_server.task import Objective
 
@@ -36,44 +51,20 @@ _PB_TO_DTYPE = {
     pb.DTYPE_BOOL: np.dtype(np.bool_),
 }
 _DTYPE_TO_PB = {dtype.name: code for code, dtype in _PB_TO_DTYPE.items()}
-
-
-class RemoteError(Exception):
-    """A failed call: `code` is the grpc.StatusCode, `message` the server's explanation."""
-
-    def __init__(self, code: grpc.StatusCode, message: str) -> None:
-        super().__init__(f"{code.name}: {message}")
-        self.code = code
-        self.message = message
-
-
-class InvalidArgumentError(RemoteError, ValueError):
-    """INVALID_ARGUMENT: the request (action, kwargs, indices) was malformed."""
-
-
-class NotFoundError(RemoteError, LookupError):
-    """NOT_FOUND: unknown env id or session."""
-
-
-class FailedPreconditionError(RemoteError):
-    """FAILED_PRECONDITION: e.g. Step before Reset."""
-
-
-class ResourceExhaustedError(RemoteError):
-    """RESOURCE_EXHAUSTED: session limit or message size."""
-
-
-_ERRORS = {
-    grpc.StatusCode.INVALID_ARGUMENT: InvalidArgumentError,
-    grpc.StatusCode.NOT_FOUND: NotFoundError,
-    grpc.StatusCode.FAILED_PRECONDITION: FailedPreconditionError,
-    grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhaustedError,
-}
-
-
-def _error(exc: grpc.RpcError) -> RemoteError:
-    code = exc.code()
-    return _ERRORS.get(code, RemoteError)(code, exc.details() or "")
+__all__ = [  # the errors and token reader live in connection.py; users import them from here
+    "FailedPreconditionError",
+    "InvalidArgumentError",
+    "NotFoundError",
+    "RemoteEnv",
+    "RemoteError",
+    "RemoteVectorEnv",
+    "ResourceExhaustedError",
+    "UnauthenticatedError",
+    "from_tensor",
+    "list_envs",
+    "read_token_file",
+    "to_tensor",
+]
 
 
 def to_tensor(arr: np.ndarray) -> pb.Tensor:
@@ -122,36 +113,10 @@ def _tree(named: Sequence[pb.NamedTensor]) -> Any:
     return out
 
 
-class _Channel:
-    """A channel, its stub and the retry rule (UNAVAILABLE only)."""
-
-    def __init__(self, address: str, max_message_mb: float = 64, retries: int = 5) -> None:
-        size = int(max_message_mb * 1024 * 1024)
-        self.channel = grpc.insecure_channel(
-            address, options=[("grpc.max_send_message_length", size), ("grpc.max_receive_message_length", size)]
-        )
-        self.stub = env_pb2_grpc.EnvServiceStub(self.channel)
-        self.retries = retries
-
-    def call(self, method: Callable[[Any], Any], request: Any) -> Any:
-        delay = 0.05
-        for attempt in range(self.retries + 1):
-            try:
-                return method(request)
-            except grpc.RpcError as exc:
-                if exc.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.retries:
-                    raise _error(exc) from None
-            time.sleep(delay)
-            delay = min(delay * 2, 2.0)
-        raise AssertionError("unreachable")
-
-    def close(self) -> None:
-        self.channel.close()
-
-
-def list_envs(address: str) -> list[tuple[str, str, tuple[Objective, ...]]]:
-    """(env_id, description, objectives) for every env the server lists."""
-    channel = _Channel(address)
+def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Objective, ...]]]:
+    """(env_id, description, objectives) for every env the server lists; `connection`
+    takes the TLS and token keywords of the module doc."""
+    channel = Channel(address, **connection)
     try:
         response = channel.call(channel.stub.ListEnvs, pb.ListEnvsRequest())
     finally:
@@ -174,10 +139,24 @@ class RemoteVectorEnv:
         info_keys: Sequence[str] = (),
         num_workers: int = 0,
         max_message_mb: float = 64,
+        tls_ca: PathLike | None = None,
+        tls_client_cert: PathLike | None = None,
+        tls_client_key: PathLike | None = None,
+        token: str | None = None,
+        token_file: PathLike | None = None,
         **kwargs: Any,
     ) -> None:
-        """num_workers >= 1 asks the server to step the instances in that many processes."""
-        self._channel = _Channel(address, max_message_mb)
+        """num_workers >= 1 asks the server to step the instances in that many processes.
+        The tls_* and token keywords are the module doc's; other kwargs go to the env."""
+        self._channel = Channel(
+            address,
+            max_message_mb,
+            tls_ca=tls_ca,
+            tls_client_cert=tls_client_cert,
+            tls_client_key=tls_client_key,
+            token=token,
+            token_file=token_file,
+        )
         if isinstance(autoreset, str):
             autoreset = Autoreset[autoreset.upper()]
         request = pb.MakeRequest(
@@ -256,8 +235,14 @@ class RemoteVectorEnv:
         if self.closed:
             return
         self.closed = True
+        request = pb.CloseRequest(session_id=self.session_id)
         try:
-            self._channel.call(self._channel.stub.Close, pb.CloseRequest(session_id=self.session_id))
+            try:
+                self._channel.call(self._channel.stub.CloseSession, request)
+            except RemoteError as exc:
+                if exc.code != grpc.StatusCode.UNIMPLEMENTED:
+                    raise
+                self._channel.call(self._channel.stub.Close, request)  # a server from before CloseSession
         except NotFoundError:
             pass  # already expired on the server
         finally:
@@ -278,7 +263,10 @@ class RemoteEnv(gymnasium.Env):
     """One remote instance as a gymnasium.Env with a vector reward (like MO-Gymnasium).
 
     Autoreset is DISABLED, so this behaves like a plain gymnasium env: call reset()
-    after an episode ends.
+    after an episode ends. The step that ends an episode puts the server's record of it
+    in `info["server_episode"]` (vector `episode_return` and `discounted_return`,
+    `length`, ...). Not `info["episode"]`: gymnasium's RecordEpisodeStatistics and
+    MO-Gymnasium's MORecordEpisodeStatistics write that key and assert it is free.
     """
 
     metadata = {"render_modes": []}
@@ -307,7 +295,7 @@ class RemoteEnv(gymnasium.Env):
         obs, reward, terminated, truncated, infos = self._vec.step(batch)
         info: dict[str, Any] = {k: _first(v) for k, v in infos.items() if k not in ("episodes", "final_observation")}
         if infos["episodes"]:
-            info["episode"] = infos["episodes"][0]
+            info["server_episode"] = infos["episodes"][0]
         return _first(obs), reward[0].copy(), bool(terminated[0]), bool(truncated[0]), info
 
     def close(self) -> None:

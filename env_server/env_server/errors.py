@@ -66,3 +66,9 @@ class Internal(EnvServerError):
 
 class SimulatorError(Internal):
     """A Task raised while stepping or resetting; names env, session and instance."""
+
+
+class Unauthenticated(EnvServerError):
+    """The call carries no bearer token, or one this server does not know."""
+
+    code = "UNAUTHENTICATED"

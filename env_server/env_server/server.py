@@ -12,6 +12,11 @@ Two fronts serve it, chosen by `--front`:
   2-vCPU bench machine.
 
 `auto` (the default) is native when the extension is installed, else grpcio.
+
+Both fronts serve TLS (optionally mutual) and check bearer tokens (security.py) on
+every EnvService call; grpc.health.v1 answers without a token, so a load balancer or
+orchestrator can probe the server. The caller's client name goes to the service,
+which binds sessions to it.
 """
 
 from __future__ import annotations
@@ -27,18 +32,27 @@ from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
+from env_server.security import ServerTls, Tokens, check_exposure
 from env_server.service import FRONTS, MESSAGE_TYPES, SERVICE_NAME, UNARY_METHODS, EnvService, status_of
 
 log = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------------- grpc.aio front
-def _unary(method: Callable[[Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
+def _owner(tokens: Tokens | None, context: grpc.aio.ServicerContext) -> str | None:
+    """The caller's client name (None without tokens); raises Unauthenticated."""
+    if tokens is None:
+        return None
+    authorization = next((v for k, v in context.invocation_metadata() or () if k == "authorization"), None)
+    return tokens.identify(authorization)
+
+
+def _unary(method: Callable[[Any, str | None], Awaitable[Any]], tokens: Tokens | None) -> Callable[..., Awaitable[Any]]:
     """A grpc.aio handler for a unary service method: exceptions become its status."""
 
     async def handler(request: Any, context: grpc.aio.ServicerContext) -> Any:
         try:
-            return await method(request)
+            return await method(request, _owner(tokens, context))
         except Exception as exc:
             code, message = status_of(exc)
             await context.abort(grpc.StatusCode[code], message)
@@ -49,13 +63,15 @@ def _unary(method: Callable[[Any], Awaitable[Any]]) -> Callable[..., Awaitable[A
 class _GrpcAioHandlers:
     """The grpc.aio handlers of Step and StepStream over one EnvService."""
 
-    def __init__(self, service: EnvService) -> None:
+    def __init__(self, service: EnvService, tokens: Tokens | None) -> None:
         self.service = service
+        self.tokens = tokens
 
     async def Step(self, request: pb.StepRequest, context: grpc.aio.ServicerContext) -> bytes:
         action = request.action
         try:
-            return self.service.step(request.session_id, action.dtype, action.shape, action.data)
+            owner = _owner(self.tokens, context)
+            return self.service.step(request.session_id, action.dtype, action.shape, action.data, owner)
         except Exception as exc:
             code, message = status_of(exc)
             await context.abort(grpc.StatusCode[code], message)
@@ -63,13 +79,18 @@ class _GrpcAioHandlers:
     async def StepStream(
         self, request_iterator: AsyncIterator[pb.StepRequest], context: grpc.aio.ServicerContext
     ) -> AsyncIterator[bytes]:
+        try:
+            owner = _owner(self.tokens, context)
+        except Exception as exc:
+            code, message = status_of(exc)
+            await context.abort(grpc.StatusCode[code], message)
         steps = self.service.open_stream()
         aborted = False
         try:
             async for request in request_iterator:
                 action = request.action
                 try:
-                    response = steps.step(request.session_id, action.dtype, action.shape, action.data)
+                    response = steps.step(request.session_id, action.dtype, action.shape, action.data, owner)
                 except Exception as exc:
                     aborted = True
                     code, message = status_of(exc)
@@ -90,14 +111,14 @@ _HANDLER_KINDS = {  # (client streaming, server streaming) -> handler factory
 }
 
 
-def _method_handlers(service: EnvService) -> dict[str, grpc.RpcMethodHandler]:
+def _method_handlers(service: EnvService, tokens: Tokens | None) -> dict[str, grpc.RpcMethodHandler]:
     """What env_pb2_grpc.add_EnvServiceServicer_to_server registers, except _ENCODED_RESPONSES."""
-    streaming = _GrpcAioHandlers(service)
+    streaming = _GrpcAioHandlers(service, tokens)
     handlers = {}
     for method in pb.DESCRIPTOR.services_by_name["EnvService"].methods:
         request, response = MESSAGE_TYPES[method.name]
         if method.name in UNARY_METHODS:
-            behaviour = _unary(getattr(service, method.name))
+            behaviour = _unary(getattr(service, method.name), tokens)
         else:
             behaviour = getattr(streaming, method.name)
         handlers[method.name] = _HANDLER_KINDS[method.client_streaming, method.server_streaming](
@@ -115,7 +136,16 @@ def _bind_address(host: str, port: int) -> str:
 class _GrpcAioFront:
     """grpc.aio serving the service, plus grpc.health.v1."""
 
-    def __init__(self, service: EnvService, host: str, port: int, max_message_bytes: int, busy_poll_us: int) -> None:
+    def __init__(
+        self,
+        service: EnvService,
+        host: str,
+        port: int,
+        max_message_bytes: int,
+        busy_poll_us: int,
+        tls: ServerTls | None,
+        tokens: Tokens | None,
+    ) -> None:
         if busy_poll_us:
             raise ValueError(
                 f"busy_poll_us: expected 0 with the grpcio front (only the native front polls), got {busy_poll_us}"
@@ -126,12 +156,20 @@ class _GrpcAioFront:
                 ("grpc.max_send_message_length", max_message_bytes),
             ]
         )
-        handlers = _method_handlers(service)
+        handlers = _method_handlers(service, tokens)
         self.server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE_NAME, handlers),))
         self.server.add_registered_method_handlers(SERVICE_NAME, handlers)
         self.health = health.aio.HealthServicer()
         health_pb2_grpc.add_HealthServicer_to_server(self.health, self.server)
-        self.port = self.server.add_insecure_port(_bind_address(host, port))
+        if tls is None:
+            self.port = self.server.add_insecure_port(_bind_address(host, port))
+        else:
+            credentials = grpc.ssl_server_credentials(
+                [(tls.private_key, tls.cert_chain)],
+                root_certificates=tls.client_ca,
+                require_client_auth=tls.client_ca is not None,
+            )
+            self.port = self.server.add_secure_port(_bind_address(host, port), credentials)
         if self.port == 0:
             raise OSError(f"could not bind {_bind_address(host, port)}")
 
@@ -148,10 +186,27 @@ class _GrpcAioFront:
 class _NativeFront:
     """env_server_native.NativeFront (tonic on its own thread), which has its own health service."""
 
-    def __init__(self, service: EnvService, host: str, port: int, max_message_bytes: int, busy_poll_us: int) -> None:
+    def __init__(
+        self,
+        service: EnvService,
+        host: str,
+        port: int,
+        max_message_bytes: int,
+        busy_poll_us: int,
+        tls: ServerTls | None,
+        tokens: Tokens | None,
+    ) -> None:
         import env_server_native
 
-        self.front = env_server_native.NativeFront(service, host, port, max_message_bytes, busy_poll_us)
+        self.front = env_server_native.NativeFront(
+            service,
+            host,
+            port,
+            max_message_bytes,
+            busy_poll_us,
+            tls=None if tls is None else (tls.cert_chain, tls.private_key, tls.client_ca),
+            tokens=None if tokens is None else list(tokens.entries),
+        )
         self.port = self.front.port
 
     async def start(self) -> None:
@@ -199,13 +254,19 @@ async def serve(
     max_workers: int = DEFAULT_MAX_WORKERS,
     front: str = "auto",
     busy_poll_us: int = 0,
+    tls: ServerTls | None = None,
+    tokens: Tokens | None = None,
+    insecure: bool = False,
     stop: asyncio.Event | None = None,
 ) -> None:
     """Serve until `stop` is set; prints `LISTENING <host>:<port>` once bound.
 
     `busy_poll_us` (native front only): how long a StepStream waits for its next request
     without sleeping; it trades that much CPU per Step for B=1 latency (see README).
+    `tls` and `tokens` secure the EnvService; a non-loopback `host` needs both unless
+    `insecure` (security.check_exposure raises SecurityConfigError).
     """
+    check_exposure(host, tls, tokens, insecure)
     front = resolve_front(front)
     service = EnvService(
         registry,
@@ -215,14 +276,17 @@ async def serve(
         max_workers=max_workers,
         loop=asyncio.get_running_loop(),
     )
-    running = _FRONT_CLASSES[front](service, host, port, max_message_bytes, busy_poll_us)
+    running = _FRONT_CLASSES[front](service, host, port, max_message_bytes, busy_poll_us, tls, tokens)
     await running.start()
     print(f"LISTENING {_bind_address(host, running.port)}", flush=True)
     log.info(
-        "serving %s on %s through the %s front (max sessions %d, max message %d bytes, lease %g s, max workers %d)",
+        "serving %s on %s through the %s front, %s, %s (max sessions %d, max message %d bytes, lease %g s, "
+        "max workers %d)",
         SERVICE_NAME,
         _bind_address(host, running.port),
         front,
+        "plaintext" if tls is None else "mutual TLS" if tls.client_ca is not None else "TLS",
+        "no tokens" if tokens is None else f"{len(tokens.entries)} bearer token(s)",
         max_sessions,
         max_message_bytes,
         lease_seconds,

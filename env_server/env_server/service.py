@@ -5,6 +5,12 @@ front of env_server_native, so the two cannot drift apart. Requests and response
 the generated protobuf messages; errors are EnvServerError subclasses, mapped to a
 status code name in exactly one place (`status_of`).
 
+Owners: with bearer tokens (security.py), a front passes the client name of the
+call's token as `owner`; a session answers only its maker, and anyone else gets the
+same NOT_FOUND as for an id that never existed. NOT_FOUND rather than PERMISSION_DENIED:
+session ids are random, so a different answer would only tell a prober which ids are
+live. Without tokens every owner is None and every client sees every session.
+
 Threads: unary RPCs and the lease reaper run on the asyncio loop. Step may run on the
 native front's own thread, so everything that reads or changes the session table, or
 steps or resets a Session, holds `_lock` (uncontended under grpc.aio, which runs
@@ -44,11 +50,12 @@ CAPABILITIES = (
     "info_keys",
     "episode_returns",
     "instance_workers",
+    "close_session",
 )
 # The transports server.py can serve this service through (`--front`).
 FRONTS = ("auto", "native", "grpcio")
 # Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
-UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "Close")
+UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "CloseSession", "Close")
 # Request and response message classes of every EnvService method, read once from the proto.
 MESSAGE_TYPES = {
     m.name: (getattr(pb, m.input_type.name), getattr(pb, m.output_type.name))
@@ -100,6 +107,7 @@ class EnvService:
         self.loop = loop
         self.sessions: dict[str, Session] = {}
         self._encoders: dict[str, wire.StepEncoder] = {}  # per session, for its Step responses
+        self._owners: dict[str, str | None] = {}  # per session, the client name that made it
         self._making = 0  # Make calls between the limit check and registration
         self._lock = threading.Lock()
 
@@ -107,9 +115,9 @@ class EnvService:
     status_of = staticmethod(status_of)
 
     # -------------------------------------------------------------- sessions
-    def _session(self, session_id: str) -> Session:
+    def _session(self, session_id: str, owner: str | None) -> Session:
         session = self.sessions.get(session_id)
-        if session is None:
+        if session is None or self._owners.get(session_id) != owner:
             raise NotFound(f"unknown session '{session_id}' (closed, expired, or never made)")
         return session
 
@@ -117,6 +125,7 @@ class EnvService:
         with self._lock:
             session = self.sessions.pop(session_id, None)
             self._encoders.pop(session_id, None)
+            self._owners.pop(session_id, None)
             if session is not None:
                 session.close()
         if session is not None:
@@ -137,7 +146,8 @@ class EnvService:
                     self.close_session(session_id, f"lease of {self.lease_seconds:g} s expired")
 
     # -------------------------------------------------------------- unary RPCs
-    async def GetVersion(self, request: pb.GetVersionRequest) -> pb.GetVersionResponse:
+    # Every unary RPC takes the caller's client name (None without tokens); see "Owners".
+    async def GetVersion(self, request: pb.GetVersionRequest, owner: str | None = None) -> pb.GetVersionResponse:
         return pb.GetVersionResponse(
             protocol_version=PROTOCOL_VERSION,
             server_version=env_server.__version__,
@@ -145,7 +155,7 @@ class EnvService:
             max_message_bytes=self.max_message_bytes,
         )
 
-    async def ListEnvs(self, request: pb.ListEnvsRequest) -> pb.ListEnvsResponse:
+    async def ListEnvs(self, request: pb.ListEnvsRequest, owner: str | None = None) -> pb.ListEnvsResponse:
         return pb.ListEnvsResponse(
             envs=[
                 pb.EnvInfo(env_id=e.env_id, description=e.description, objectives=wire.objectives_pb(e.objectives))
@@ -153,7 +163,7 @@ class EnvService:
             ]
         )
 
-    async def Make(self, request: pb.MakeRequest) -> pb.MakeResponse:
+    async def Make(self, request: pb.MakeRequest, owner: str | None = None) -> pb.MakeResponse:
         if request.num_envs < 1:
             raise InvalidArgument(f"num_envs: expected >= 1, got {request.num_envs}")
         if request.num_workers > self.max_workers:
@@ -198,45 +208,59 @@ class EnvService:
         with self._lock:
             self.sessions[session.id] = session
             self._encoders[session.id] = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
-        log.info("made session %s: %s x%d; %d open", session.id, session.env_id, session.num_envs, len(self.sessions))
+            self._owners[session.id] = owner
+        log.info(
+            "made session %s: %s x%d%s; %d open",
+            session.id,
+            session.env_id,
+            session.num_envs,
+            "" if owner is None else f" for client {owner!r}",
+            len(self.sessions),
+        )
         return pb.MakeResponse(session_id=session.id, spec=wire.spec_pb(session), lease_seconds=self.lease_seconds)
 
     def _build(self, env_id: str, num_envs: int, kwargs: dict[str, Any], **options: Any) -> Session:
         return make_session(self.registry.resolve(env_id), num_envs, kwargs, **options)
 
-    async def Reset(self, request: pb.ResetRequest) -> pb.ResetResponse:
+    async def Reset(self, request: pb.ResetRequest, owner: str | None = None) -> pb.ResetResponse:
         with self._lock:
-            session = self._session(request.session_id)
+            session = self._session(request.session_id, owner)
             return wire.reset_pb(session.reset(request.env_indices, request.seeds))
 
-    async def Close(self, request: pb.CloseRequest) -> pb.CloseResponse:
-        self._session(request.session_id)
+    async def CloseSession(self, request: pb.CloseRequest, owner: str | None = None) -> pb.CloseResponse:
+        with self._lock:
+            self._session(request.session_id, owner)
         self.close_session(request.session_id, "closed by the client")
         return pb.CloseResponse()
 
-    def submit(self, method: str, request: bytes, reply: Reply) -> concurrent.futures.Future:
-        """Answer the serialized unary `request` on the loop, from any thread, via `reply`.
+    # The deprecated name of CloseSession (gRPC's JavaScript library hides the channel's
+    # own close() behind an RPC named Close); still served for older clients.
+    Close = CloseSession
+
+    def submit(self, method: str, request: bytes, reply: Reply, owner: str | None = None) -> concurrent.futures.Future:
+        """Answer the serialized unary `request` of client `owner` on the loop, from any
+        thread, via `reply`.
 
         Cancelling the returned future cancels the call (its client went away).
         """
-        return asyncio.run_coroutine_threadsafe(self._answer(method, request, reply), self.loop)
+        return asyncio.run_coroutine_threadsafe(self._answer(method, request, reply, owner), self.loop)
 
-    async def _answer(self, method: str, request: bytes, reply: Reply) -> None:
+    async def _answer(self, method: str, request: bytes, reply: Reply, owner: str | None) -> None:
         request_type, _ = MESSAGE_TYPES[method]
         try:
-            response = await getattr(self, method)(request_type.FromString(request))
+            response = await getattr(self, method)(request_type.FromString(request), owner)
         except Exception as exc:
             reply.error(*status_of(exc))
             return
         reply.ok(response.SerializeToString())
 
     # -------------------------------------------------------------- Step
-    def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes) -> bytes:
-        """One Step, as a serialized StepResponse (wire.StepEncoder's bytes)."""
+    def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes, owner: str | None = None) -> bytes:
+        """One Step of client `owner`, as a serialized StepResponse (wire.StepEncoder's bytes)."""
         with self._lock:
             session = self.sessions.get(session_id)
-            if session is None:
-                self._session(session_id)
+            if session is None or self._owners[session_id] != owner:
+                self._session(session_id, owner)
             return self._encoders[session_id].encode(session.step(_dtype_name(dtype), shape, data))
 
     def open_stream(self) -> StreamSteps:
@@ -256,8 +280,8 @@ class StreamSteps:
         self._service = service
         self._stepped: set[str] = set()
 
-    def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes) -> bytes:
-        response = self._service.step(session_id, dtype, shape, data)
+    def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes, owner: str | None = None) -> bytes:
+        response = self._service.step(session_id, dtype, shape, data, owner)
         self._stepped.add(session_id)
         return response
 

@@ -31,8 +31,44 @@ def test_remote_env_is_a_gymnasium_env_with_vector_reward(address: str) -> None:
         obs, reward, terminated, truncated, info = env.step(2)
         assert reward.shape == (2,) and reward.dtype == np.float32
         np.testing.assert_allclose(reward, [-1, 0.7], rtol=1e-6)
-        assert terminated and not truncated and info["episode"]["length"] == 1
+        assert terminated and not truncated and info["server_episode"]["length"] == 1
         assert obs.tolist() == [1, 0]  # autoreset is off: the caller resets
+    finally:
+        env.close()
+
+
+def _run_episode(env: gymnasium.Env, actions: list[int]) -> dict:
+    env.reset(seed=0)
+    for action in actions:
+        _, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            return info
+    raise AssertionError("the episode did not end")
+
+
+def test_gymnasium_record_episode_statistics_wraps_the_remote_env(address: str) -> None:
+    env = gymnasium.wrappers.RecordEpisodeStatistics(RemoteEnv(address, "dst"))
+    try:
+        info = _run_episode(env, [1, 2, 2])  # right, then down onto the 8.2 treasure
+        server = info["server_episode"]
+        assert info["episode"]["l"] == server["length"] == 3
+        np.testing.assert_allclose(info["episode"]["r"], server["episode_return"], rtol=1e-6)
+        np.testing.assert_allclose(server["episode_return"], [-3, 8.2], rtol=1e-6)
+        assert len(env.return_queue) == 1
+    finally:
+        env.close()
+
+
+def test_mo_gymnasium_record_episode_statistics_wraps_the_remote_env(address: str) -> None:
+    from mo_gymnasium.wrappers import MORecordEpisodeStatistics
+
+    env = MORecordEpisodeStatistics(RemoteEnv(address, "dst", discount=0.9), gamma=0.9)
+    try:
+        info = _run_episode(env, [1, 2, 2])
+        server = info["server_episode"]
+        np.testing.assert_allclose(info["episode"]["r"], server["episode_return"], rtol=1e-6)
+        np.testing.assert_allclose(info["episode"]["dr"], server["discounted_return"], rtol=1e-5)
+        assert info["episode"]["l"] == server["length"]
     finally:
         env.close()
 

@@ -127,6 +127,7 @@ def test_version_and_health(address: str, stub) -> None:
         "dict_observations",
         "info_keys",
         "episode_returns",
+        "close_session",
     ):
         assert flag in version.capabilities
     assert version.max_message_bytes == 64 * 1024 * 1024
@@ -135,6 +136,16 @@ def test_version_and_health(address: str, stub) -> None:
         for service in ("", "mo_env.v1.EnvService"):
             status = health.Check(health_pb2.HealthCheckRequest(service=service)).status
             assert status == health_pb2.HealthCheckResponse.SERVING
+
+
+def test_close_session_and_its_deprecated_alias_close(stub) -> None:
+    """CloseSession is the name; Close (hidden by gRPC's JavaScript library) still works."""
+    for close in (stub.CloseSession, stub.Close):
+        session_id = make(stub, "dst").session_id
+        assert close(pb.CloseRequest(session_id=session_id)) == pb.CloseResponse()
+        for again in (stub.CloseSession, stub.Close):
+            err = rpc_error(again, pb.CloseRequest(session_id=session_id))
+            assert err.code() == grpc.StatusCode.NOT_FOUND and session_id in err.details()
 
 
 def test_list_envs_rpc(stub) -> None:

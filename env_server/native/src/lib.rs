@@ -10,11 +10,13 @@
 //! queued onto the Python asyncio loop, exactly where grpc.aio ran them.
 //!
 //! The Python contract (`env_server/service.py` implements it):
-//! - `step(session_id, dtype, shape, data) -> bytes` (a serialized StepResponse);
+//! - `step(session_id, dtype, shape, data, owner) -> bytes` (a serialized StepResponse;
+//!   `owner` is the caller's client name, None without tokens);
 //! - `open_stream()` -> object with the same `step` and `finish(aborted: bool)`;
-//! - `submit(method, request: bytes, reply: Reply) -> concurrent.futures.Future`;
+//! - `submit(method, request: bytes, reply: Reply, owner) -> concurrent.futures.Future`;
 //! - `status_of(exc) -> (code_name, message)`, the one exception -> status mapping.
 
+mod auth;
 mod service;
 mod status;
 
@@ -24,16 +26,23 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use mo_env_proto::v1::env_service_server::EnvServiceServer;
-use pyo3::exceptions::{PyOSError, PyRuntimeError};
+use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use tokio::sync::oneshot;
 use tonic::transport::server::TcpIncoming;
+use tonic::transport::{Certificate, Identity, ServerTlsConfig};
+
+use auth::Tokens;
 
 use service::PyEnvService;
 pub use service::Reply;
 
 /// gRPC service name, as registered with the health service.
 const SERVICE_NAME: &str = "mo_env.v1.EnvService";
+
+/// PEM bytes of the certificate chain, its private key, and the CA of client
+/// certificates (None: no client certificates asked for).
+type PemTls = (Vec<u8>, Vec<u8>, Option<Vec<u8>>);
 
 /// A running native front; `stop()` ends it (and so does dropping it).
 #[pyclass(frozen, module = "env_server_native")]
@@ -47,16 +56,39 @@ pub struct NativeFront {
 impl NativeFront {
     /// Bind `host:port` (port 0: the OS picks) and start serving `service` on a new thread.
     /// `busy_poll_us` > 0: a StepStream waits that long for its next request without sleeping.
+    /// `tls`: PEM (certificate chain, private key, client CA or None for no client
+    /// certificates). `tokens`: `(client name, token)` pairs every EnvService call must
+    /// present one of (`security.Tokens.entries`); None: no check.
     #[new]
-    #[pyo3(signature = (service, host, port, max_message_bytes, busy_poll_us = 0))]
+    #[pyo3(signature = (service, host, port, max_message_bytes, busy_poll_us = 0, tls = None, tokens = None))]
     fn new(
         service: Py<PyAny>,
         host: &str,
         port: u16,
         max_message_bytes: usize,
         busy_poll_us: u64,
+        tls: Option<PemTls>,
+        tokens: Option<Vec<(String, String)>>,
     ) -> PyResult<Self> {
         let busy_poll = (busy_poll_us > 0).then(|| Duration::from_micros(busy_poll_us));
+        let mut builder = tonic::transport::Server::builder();
+        if let Some((cert, key, client_ca)) = tls {
+            let mut config = ServerTlsConfig::new().identity(Identity::from_pem(cert, key));
+            if let Some(ca) = client_ca {
+                config = config.client_ca_root(Certificate::from_pem(ca));
+            }
+            // Parses the PEM now, so a bad file fails the server's start, not its thread.
+            builder = builder.tls_config(config).map_err(|e| {
+                PyValueError::new_err(format!(
+                    "TLS: expected a certificate chain and its private key in PEM, got files that do not load: {e}"
+                ))
+            })?;
+        }
+        let front = Front {
+            builder,
+            busy_poll,
+            tokens: tokens.map(Tokens::new),
+        };
         let listener = StdTcpListener::bind((host, port))
             .map_err(|e| PyOSError::new_err(format!("could not bind {host}:{port}: {e}")))?;
         let port = listener.local_addr()?.port();
@@ -78,7 +110,7 @@ impl NativeFront {
                     listener,
                     service,
                     max_message_bytes,
-                    busy_poll,
+                    front,
                     stop_rx,
                 )
             })
@@ -124,13 +156,21 @@ impl Drop for NativeFront {
 
 type OversizeRewrite = fn(http::Response<tonic::body::Body>) -> http::Response<tonic::body::Body>;
 
+/// How the front serves, beyond where.
+struct Front {
+    /// The server builder, with its TLS acceptor when serving TLS.
+    builder: tonic::transport::Server,
+    busy_poll: Option<Duration>,
+    tokens: Option<Tokens>,
+}
+
 /// The front thread: serve until told to stop, then give in-flight calls `grace`.
 fn serve(
     runtime: tokio::runtime::Runtime,
     listener: StdTcpListener,
     service: Py<PyAny>,
     max_message_bytes: usize,
-    busy_poll: Option<Duration>,
+    front: Front,
     stop_rx: oneshot::Receiver<Duration>,
 ) {
     runtime.block_on(async move {
@@ -148,9 +188,10 @@ fn serve(
                 .set_service_status(name, tonic_health::ServingStatus::Serving)
                 .await;
         }
-        let env_service = EnvServiceServer::new(PyEnvService::new(service, busy_poll))
-            .max_decoding_message_size(max_message_bytes)
-            .max_encoding_message_size(max_message_bytes);
+        let env_service =
+            EnvServiceServer::new(PyEnvService::new(service, front.busy_poll, front.tokens))
+                .max_decoding_message_size(max_message_bytes)
+                .max_encoding_message_size(max_message_bytes);
         let (grace_tx, grace_rx) = oneshot::channel();
         let shutdown = async move {
             let grace = stop_rx.await.unwrap_or(Duration::ZERO);
@@ -161,7 +202,8 @@ fn serve(
             }
             let _ = grace_tx.send(grace);
         };
-        let server = tonic::transport::Server::builder()
+        let builder = front.builder;
+        let server = builder
             .layer(tower::util::MapResponseLayer::new(
                 status::oversize_response as OversizeRewrite,
             ))

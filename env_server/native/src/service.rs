@@ -4,6 +4,9 @@
 //! The other RPCs are submitted to the Python asyncio loop as serialized requests and
 //! answered through a `Reply`; a client that goes away cancels its pending call, as
 //! grpc.aio does (a Make whose client left closes the session it built).
+//!
+//! With tokens, every call is authenticated first (`auth.rs`) and the caller's client
+//! name goes to Python with the call, which binds sessions to it.
 
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
@@ -23,6 +26,7 @@ use pyo3::types::PyBytes;
 use tokio::sync::oneshot;
 use tonic::{Request, Response, Status, Streaming};
 
+use crate::auth::{self, Tokens};
 use crate::status;
 
 /// What a submitted unary call answers: a serialized response or a status.
@@ -72,14 +76,25 @@ impl Drop for CancelOnDrop {
 pub(crate) struct PyEnvService {
     service: Arc<Py<PyAny>>,
     busy_poll: Option<Duration>,
+    tokens: Option<Tokens>,
 }
 
 impl PyEnvService {
-    pub(crate) fn new(service: Py<PyAny>, busy_poll: Option<Duration>) -> Self {
+    pub(crate) fn new(
+        service: Py<PyAny>,
+        busy_poll: Option<Duration>,
+        tokens: Option<Tokens>,
+    ) -> Self {
         Self {
             service: Arc::new(service),
             busy_poll,
+            tokens,
         }
+    }
+
+    /// The caller's client name (None without tokens), or UNAUTHENTICATED.
+    fn owner<T>(&self, request: &Request<T>) -> Result<Option<String>, Status> {
+        auth::owner(self.tokens.as_ref(), request.metadata())
     }
 
     /// Run `method` on the Python asyncio loop and wait for its reply.
@@ -88,6 +103,7 @@ impl PyEnvService {
         method: &'static str,
         request: Request<Req>,
     ) -> Result<Response<Resp>, Status> {
+        let owner = self.owner(&request)?;
         let data = request.into_inner().encode_to_vec();
         let (tx, rx) = oneshot::channel();
         let future = Python::attach(|py| {
@@ -97,7 +113,7 @@ impl PyEnvService {
                     tx: Mutex::new(Some(tx)),
                 },
             )?;
-            let args = (method, PyBytes::new(py, &data), reply);
+            let args = (method, PyBytes::new(py, &data), reply, owner);
             self.service
                 .bind(py)
                 .call_method1("submit", args)
@@ -118,11 +134,13 @@ impl PyEnvService {
     }
 }
 
-/// One Step through `target` (the service, or a stream's step state), inline.
+/// One Step of client `owner` through `target` (the service, or a stream's step
+/// state), inline.
 fn step_with(
     service: &Py<PyAny>,
     target: &Py<PyAny>,
     request: StepRequest,
+    owner: Option<&str>,
 ) -> Result<StepResponse, Status> {
     let action = request.action.unwrap_or_default();
     let encoded = Python::attach(|py| {
@@ -131,6 +149,7 @@ fn step_with(
             action.dtype,
             action.shape,
             PyBytes::new(py, &action.data),
+            owner,
         );
         match target.bind(py).call_method1("step", args) {
             Ok(response) => match response.cast::<PyBytes>() {
@@ -179,6 +198,7 @@ struct StreamState {
     inbound: Streaming<StepRequest>,
     steps: StreamSteps,
     busy_poll: Option<Duration>,
+    owner: Option<String>,
 }
 
 impl StreamState {
@@ -210,7 +230,7 @@ impl StreamState {
         match next {
             Some(Ok(request)) => {
                 let target = self.steps.steps.as_ref()?;
-                let result = step_with(&self.steps.service, target, request);
+                let result = step_with(&self.steps.service, target, request, self.owner.as_deref());
                 // A bad request ends the stream with its status but leaves the sessions
                 // usable (the client may retry on a new stream).
                 if result.is_err() {
@@ -262,7 +282,14 @@ impl EnvService for PyEnvService {
     }
 
     async fn step(&self, request: Request<StepRequest>) -> Result<Response<StepResponse>, Status> {
-        step_with(&self.service, &self.service, request.into_inner()).map(Response::new)
+        let owner = self.owner(&request)?;
+        step_with(
+            &self.service,
+            &self.service,
+            request.into_inner(),
+            owner.as_deref(),
+        )
+        .map(Response::new)
     }
 
     type StepStreamStream = StepResponses;
@@ -271,6 +298,7 @@ impl EnvService for PyEnvService {
         &self,
         request: Request<Streaming<StepRequest>>,
     ) -> Result<Response<Self::StepStreamStream>, Status> {
+        let owner = self.owner(&request)?;
         let steps = Python::attach(|py| {
             self.service
                 .bind(py)
@@ -285,12 +313,20 @@ impl EnvService for PyEnvService {
                 steps: Some(steps),
             },
             busy_poll: self.busy_poll,
+            owner,
         };
         let responses = futures::stream::unfold(state, |mut state| async move {
             let item = state.next().await?;
             Some((item, state))
         });
         Ok(Response::new(Box::pin(responses)))
+    }
+
+    async fn close_session(
+        &self,
+        request: Request<CloseRequest>,
+    ) -> Result<Response<CloseResponse>, Status> {
+        self.unary("CloseSession", request).await
     }
 
     async fn close(

@@ -4,6 +4,7 @@
 //! [`crate::env`] here, field by field, so a protocol change breaks the build in
 //! one place. Only UNAVAILABLE is retried (with exponential backoff); every other
 //! status becomes a typed [`EnvError::Status`] carrying the server's message.
+//! Servers on other hosts are reached over TLS with a bearer token ([`Credentials`]).
 
 use std::future::Future;
 use std::time::Duration;
@@ -12,15 +13,18 @@ use mo_env_proto::v1 as pb;
 use pb::env_service_client::EnvServiceClient;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
-use tonic::transport::{Channel, Endpoint};
 
+mod channel;
 mod convert;
+
+use channel::{Bearer, Stub};
 
 use convert::{
     autoreset_to_proto, missing, named_from_proto, objective_from_proto, observation_from_proto,
     spec_from_proto, step_from_proto, tensor_to_proto,
 };
 
+use super::connection::Credentials;
 use super::{Env, HostTensor, MakeOptions, ResetResult, StepResult};
 use crate::error::{EnvError, StatusKind};
 use crate::spec::{EnvInfo, EnvSpec, ServerVersion};
@@ -69,6 +73,8 @@ fn status_kind(code: tonic::Code) -> StatusKind {
         tonic::Code::ResourceExhausted => StatusKind::ResourceExhausted,
         tonic::Code::Internal => StatusKind::Internal,
         tonic::Code::Unavailable => StatusKind::Unavailable,
+        tonic::Code::Unauthenticated => StatusKind::Unauthenticated,
+        tonic::Code::Unimplemented => StatusKind::Unimplemented,
         _ => StatusKind::Other,
     }
 }
@@ -79,6 +85,9 @@ fn status_kind(code: tonic::Code) -> StatusKind {
 /// never cancels its own calls (a dropped call observes no status), so CANCELLED
 /// always means the connection went away.
 fn is_unavailable(status: &tonic::Status) -> bool {
+    if channel::rejected_by_tls(status) {
+        return false; // the certificates will not change on a retry
+    }
     match status.code() {
         tonic::Code::Unavailable | tonic::Code::Cancelled => true,
         tonic::Code::Unknown => std::error::Error::source(status).is_some(),
@@ -92,46 +101,65 @@ fn status_error(call: &'static str, status: &tonic::Status) -> EnvError {
     } else {
         status_kind(status.code())
     };
+    // A transport failure's status says only "transport error"; its sources say why.
+    let message = match std::error::Error::source(status) {
+        Some(source) => format!("{}: {}", status.message(), chain(source)),
+        None => status.message().to_string(),
+    };
     EnvError::Status {
         call,
         code,
-        message: status.message().to_string(),
+        message,
     }
 }
 
 /// A connection to one env server.
 #[derive(Debug, Clone)]
 pub struct EnvClient {
-    client: EnvServiceClient<Channel>,
+    client: Stub,
     address: String,
     retry: RetryPolicy,
 }
 
 impl EnvClient {
-    /// Connect to `host:port` (or an `http://` URL) with the default retry policy.
+    /// Connect to `host:port` (or an `http://` URL), plain and without a token, with
+    /// the default retry policy.
     pub async fn connect(address: &str) -> Result<Self, EnvError> {
-        Self::connect_with(address, RetryPolicy::default()).await
+        Self::connect_with(address, &Credentials::default(), RetryPolicy::default()).await
     }
 
-    /// Connect, retrying refused connections per `retry`.
-    pub async fn connect_with(address: &str, retry: RetryPolicy) -> Result<Self, EnvError> {
-        let uri = if address.contains("://") {
-            address.to_string()
-        } else {
-            format!("http://{address}")
-        };
+    /// Connect to `host:port`, `http://` or `https://` with TLS and a token as
+    /// `credentials` say, with the default retry policy.
+    pub async fn connect_with_credentials(
+        address: &str,
+        credentials: &Credentials,
+    ) -> Result<Self, EnvError> {
+        Self::connect_with(address, credentials, RetryPolicy::default()).await
+    }
+
+    /// Connect, retrying refused connections per `retry`; a failed TLS handshake is
+    /// not retried (the certificates will not change).
+    pub async fn connect_with(
+        address: &str,
+        credentials: &Credentials,
+        retry: RetryPolicy,
+    ) -> Result<Self, EnvError> {
         let connect_error = |reason: String| EnvError::Connect {
             address: address.to_string(),
             reason,
         };
-        let endpoint = Endpoint::from_shared(uri)
-            .map_err(|e| connect_error(format!("invalid address: {e}")))?
-            .tcp_nodelay(true)
-            .connect_timeout(Duration::from_secs(5));
+        let endpoint = channel::endpoint(address, credentials).map_err(connect_error)?;
+        let bearer = Bearer::new(credentials.token.as_deref()).map_err(connect_error)?;
         let mut attempt = 0;
         let channel = loop {
             match endpoint.connect().await {
                 Ok(channel) => break channel,
+                Err(e) if channel::is_permanent(&e) => {
+                    return Err(connect_error(format!(
+                        "TLS handshake failed: {}",
+                        chain(&e)
+                    )));
+                }
                 Err(e) if attempt + 1 < retry.max_attempts => {
                     tracing::debug!(address, attempt, error = %e, "connect failed; retrying");
                     tokio::time::sleep(retry.backoff(attempt)).await;
@@ -139,13 +167,14 @@ impl EnvClient {
                 }
                 Err(e) => {
                     return Err(connect_error(format!(
-                        "{e} (after {} attempts)",
+                        "{} (after {} attempts)",
+                        chain(&e),
                         attempt + 1
                     )));
                 }
             }
         };
-        let client = EnvServiceClient::new(channel)
+        let client = EnvServiceClient::with_interceptor(channel, bearer)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
         Ok(Self {
@@ -169,7 +198,7 @@ impl EnvClient {
     ) -> Result<Resp, EnvError>
     where
         Req: Clone,
-        F: FnMut(EnvServiceClient<Channel>, Req) -> Fut,
+        F: FnMut(Stub, Req) -> Fut,
         Fut: Future<Output = Result<tonic::Response<Resp>, tonic::Status>>,
     {
         let mut attempt = 0;
@@ -405,11 +434,41 @@ impl Env for RemoteEnv {
         let request = pb::CloseRequest {
             session_id: self.session_id.clone(),
         };
-        self.client
-            .call("Close", request, |mut c, r| async move { c.close(r).await })
-            .await?;
+        let closed = self
+            .client
+            .call("CloseSession", request.clone(), |mut c, r| async move {
+                c.close_session(r).await
+            })
+            .await;
+        match closed {
+            // A server from before CloseSession knows the call only by its old name.
+            Err(EnvError::Status {
+                code: StatusKind::Unimplemented,
+                ..
+            }) => {
+                #[allow(deprecated, reason = "the fallback for servers without CloseSession")]
+                self.client
+                    .call("Close", request, |mut c, r| async move { c.close(r).await })
+                    .await?;
+            }
+            closed => {
+                closed?;
+            }
+        }
         Ok(())
     }
+}
+
+/// An error and its sources, "a: b: c" (tonic's transport errors say little alone).
+fn chain(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut source = error.source();
+    while let Some(e) = source {
+        text.push_str(": ");
+        text.push_str(&e.to_string());
+        source = e.source();
+    }
+    text
 }
 
 #[cfg(test)]

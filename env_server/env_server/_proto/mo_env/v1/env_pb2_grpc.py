@@ -64,6 +64,11 @@ class EnvServiceStub:
                 request_serializer=mo__env_dot_v1_dot_env__pb2.StepRequest.SerializeToString,
                 response_deserializer=mo__env_dot_v1_dot_env__pb2.StepResponse.FromString,
                 _registered_method=True)
+        self.CloseSession = channel.unary_unary(
+                '/mo_env.v1.EnvService/CloseSession',
+                request_serializer=mo__env_dot_v1_dot_env__pb2.CloseRequest.SerializeToString,
+                response_deserializer=mo__env_dot_v1_dot_env__pb2.CloseResponse.FromString,
+                _registered_method=True)
         self.Close = channel.unary_unary(
                 '/mo_env.v1.EnvService/Close',
                 request_serializer=mo__env_dot_v1_dot_env__pb2.CloseRequest.SerializeToString,
@@ -117,8 +122,17 @@ class EnvServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def CloseSession(self, request, context):
+        """Release a session (capability "close_session").
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
     def Close(self, request, context):
-        """Release a session.
+        """Deprecated: the old name of CloseSession, same request and answer, still served.
+        gRPC's JavaScript library turns an RPC named Close into the stub's `close`, which
+        hides the channel's own close(); new clients call CloseSession.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -156,6 +170,11 @@ def add_EnvServiceServicer_to_server(servicer, server):
                     servicer.StepStream,
                     request_deserializer=mo__env_dot_v1_dot_env__pb2.StepRequest.FromString,
                     response_serializer=mo__env_dot_v1_dot_env__pb2.StepResponse.SerializeToString,
+            ),
+            'CloseSession': grpc.unary_unary_rpc_method_handler(
+                    servicer.CloseSession,
+                    request_deserializer=mo__env_dot_v1_dot_env__pb2.CloseRequest.FromString,
+                    response_serializer=mo__env_dot_v1_dot_env__pb2.CloseResponse.SerializeToString,
             ),
             'Close': grpc.unary_unary_rpc_method_handler(
                     servicer.Close,
@@ -325,6 +344,33 @@ class EnvService:
             '/mo_env.v1.EnvService/StepStream',
             mo__env_dot_v1_dot_env__pb2.StepRequest.SerializeToString,
             mo__env_dot_v1_dot_env__pb2.StepResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def CloseSession(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/mo_env.v1.EnvService/CloseSession',
+            mo__env_dot_v1_dot_env__pb2.CloseRequest.SerializeToString,
+            mo__env_dot_v1_dot_env__pb2.CloseResponse.FromString,
             options,
             channel_credentials,
             insecure,

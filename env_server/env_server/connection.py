@@ -1,0 +1,138 @@
+"""The client's connection: a plain or TLS channel, the bearer token, the retry rule,
+and the errors a failed call raises. `env_server.client` builds on it (and re-exports
+the errors). TLS and tokens live here and in the fronts, never in the service (DESIGN.md §8).
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import time
+from collections.abc import Callable
+from typing import Any
+
+import grpc
+
+from env_server._proto.mo_env.v1 import env_pb2_grpc
+from env_server.security import parse_token_lines
+
+
+class RemoteError(Exception):
+    """A failed call: `code` is the grpc.StatusCode, `message` the server's explanation."""
+
+    def __init__(self, code: grpc.StatusCode, message: str) -> None:
+        super().__init__(f"{code.name}: {message}")
+        self.code = code
+        self.message = message
+
+
+class InvalidArgumentError(RemoteError, ValueError):
+    """INVALID_ARGUMENT: the request (action, kwargs, indices) was malformed."""
+
+
+class NotFoundError(RemoteError, LookupError):
+    """NOT_FOUND: unknown env id or session."""
+
+
+class FailedPreconditionError(RemoteError):
+    """FAILED_PRECONDITION: e.g. Step before Reset."""
+
+
+class ResourceExhaustedError(RemoteError):
+    """RESOURCE_EXHAUSTED: session limit or message size."""
+
+
+class UnauthenticatedError(RemoteError, PermissionError):
+    """UNAUTHENTICATED: the server takes bearer tokens and this client's is missing or unknown."""
+
+
+_ERRORS = {
+    grpc.StatusCode.INVALID_ARGUMENT: InvalidArgumentError,
+    grpc.StatusCode.NOT_FOUND: NotFoundError,
+    grpc.StatusCode.FAILED_PRECONDITION: FailedPreconditionError,
+    grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhaustedError,
+    grpc.StatusCode.UNAUTHENTICATED: UnauthenticatedError,
+}
+
+
+def _error(exc: grpc.RpcError) -> RemoteError:
+    code = exc.code()
+    return _ERRORS.get(code, RemoteError)(code, exc.details() or "")
+
+
+PathLike = str | os.PathLike[str]
+
+
+def read_token_file(path: PathLike) -> str:
+    """The one token line of a token file (`token` or `name:token`, as the server's
+    --auth-token-file lines are)."""
+    entries = parse_token_lines(pathlib.Path(path).read_text(encoding="utf-8"), str(path))
+    if len(entries) != 1:
+        raise ValueError(f"token_file: expected exactly one token line in {path}, got {len(entries)}")
+    return entries[0][1]
+
+
+class Channel:
+    """A channel (plain or TLS), its stub, the token and the retry rule (UNAVAILABLE only)."""
+
+    def __init__(
+        self,
+        address: str,
+        max_message_mb: float = 64,
+        retries: int = 5,
+        *,
+        tls_ca: PathLike | None = None,
+        tls_client_cert: PathLike | None = None,
+        tls_client_key: PathLike | None = None,
+        token: str | None = None,
+        token_file: PathLike | None = None,
+    ) -> None:
+        size = int(max_message_mb * 1024 * 1024)
+        options = [("grpc.max_send_message_length", size), ("grpc.max_receive_message_length", size)]
+        if (tls_client_cert is None) != (tls_client_key is None):
+            raise ValueError("tls_client_cert, tls_client_key: expected both or neither, got one")
+        if token is not None and token_file is not None:
+            raise ValueError("token, token_file: expected at most one, got both")
+        # http:// and https:// choose the transport; any other target (host:port,
+        # unix:...) goes to grpc as it is.
+        scheme, sep, target = address.partition("://")
+        if not sep or scheme not in ("http", "https"):
+            scheme, target = "", address
+        implied = tls_ca is not None or tls_client_cert is not None
+        if scheme == "http" and implied:
+            raise ValueError(f"address: expected host:port or https://... with TLS files, got {address!r}")
+        if scheme == "https" or (scheme == "" and implied):
+            credentials = grpc.ssl_channel_credentials(
+                root_certificates=_read(tls_ca),
+                private_key=_read(tls_client_key),
+                certificate_chain=_read(tls_client_cert),
+            )
+            self.channel = grpc.secure_channel(target, credentials, options=options)
+        else:
+            self.channel = grpc.insecure_channel(target, options=options)
+        if token_file is not None:
+            token = read_token_file(token_file)
+        # Sent as call metadata rather than call credentials, which grpc allows only over
+        # TLS: a token on a plaintext loopback connection is legitimate (no --tls-cert).
+        self.metadata = () if token is None else (("authorization", f"Bearer {token}"),)
+        self.stub = env_pb2_grpc.EnvServiceStub(self.channel)
+        self.retries = retries
+
+    def call(self, method: Callable[..., Any], request: Any) -> Any:
+        delay = 0.05
+        for attempt in range(self.retries + 1):
+            try:
+                return method(request, metadata=self.metadata)
+            except grpc.RpcError as exc:
+                if exc.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.retries:
+                    raise _error(exc) from None
+            time.sleep(delay)
+            delay = min(delay * 2, 2.0)
+        raise AssertionError("unreachable")
+
+    def close(self) -> None:
+        self.channel.close()
+
+
+def _read(path: PathLike | None) -> bytes | None:
+    return None if path is None else pathlib.Path(path).read_bytes()

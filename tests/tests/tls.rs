@@ -1,0 +1,235 @@
+//! The agent against env servers that take TLS and a bearer token: it trains and
+//! evaluates through two of them (the README's two-host example, on loopback), and
+//! fails clearly with a wrong token or a CA that did not sign the servers.
+//!
+//! The CA, certificates and tokens are made here at run time (rcgen); no key is
+//! committed.
+
+use std::path::{Path, PathBuf};
+
+use agent::env::connection::ConnectionConfig;
+use agent::env::grpc::EnvClient;
+use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::error::{EnvError, StatusKind};
+use agent::eval::evaluate_checkpoint;
+use agent::train::{TrainOptions, train};
+use integration_tests::smoke_config;
+use rcgen::{BasicConstraints, CertificateParams, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair};
+
+const TOKEN: &str = "learner:e2e-token-0123456789abcdef";
+
+/// Files of one throwaway PKI: a CA and a server certificate for 127.0.0.1.
+struct Pki {
+    ca: PathBuf,
+    server_cert: PathBuf,
+    server_key: PathBuf,
+    issuer: Issuer<'static, KeyPair>,
+}
+
+fn write_pki(dir: &Path, name: &str) -> Pki {
+    let ca_key = KeyPair::generate().unwrap();
+    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
+    let issuer = Issuer::new(ca_params, ca_key);
+    let server_key = KeyPair::generate().unwrap();
+    let server_cert = CertificateParams::new(vec!["127.0.0.1".to_string()])
+        .unwrap()
+        .signed_by(&server_key, &issuer)
+        .unwrap();
+    let pki = Pki {
+        ca: dir.join(format!("{name}-ca.pem")),
+        server_cert: dir.join(format!("{name}-server.pem")),
+        server_key: dir.join(format!("{name}-server.key")),
+        issuer,
+    };
+    std::fs::write(&pki.ca, ca_cert.pem()).unwrap();
+    std::fs::write(&pki.server_cert, server_cert.pem()).unwrap();
+    std::fs::write(&pki.server_key, server_key.serialize_pem()).unwrap();
+    pki
+}
+
+/// A client certificate the PKI's CA signed, as (certificate, key) files.
+fn write_client_cert(pki: &Pki, dir: &Path) -> (PathBuf, PathBuf) {
+    let key = KeyPair::generate().unwrap();
+    let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    params.extended_key_usages = vec![ExtendedKeyUsagePurpose::ClientAuth];
+    let cert = params.signed_by(&key, &pki.issuer).unwrap();
+    let paths = (dir.join("client.pem"), dir.join("client.key"));
+    std::fs::write(&paths.0, cert.pem()).unwrap();
+    std::fs::write(&paths.1, key.serialize_pem()).unwrap();
+    paths
+}
+
+async fn tls_server(pki: &Pki, tokens: &Path) -> LocalServer {
+    tls_server_with(pki, tokens, &[]).await
+}
+
+async fn tls_server_with(pki: &Pki, tokens: &Path, more: &[String]) -> LocalServer {
+    let path = |p: &Path| p.display().to_string();
+    let mut extra_args = vec![
+        "--tls-cert".into(),
+        path(&pki.server_cert),
+        "--tls-key".into(),
+        path(&pki.server_key),
+        "--auth-token-file".into(),
+        path(tokens),
+    ];
+    extra_args.extend_from_slice(more);
+    let options = ServerOptions {
+        extra_args,
+        ..ServerOptions::default()
+    };
+    LocalServer::start(&options)
+        .await
+        .expect("TLS env_server starts")
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_agent_trains_and_evaluates_through_two_tls_servers_with_a_token() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = write_pki(dir.path(), "good");
+    let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
+    let (a, b) = (
+        tls_server(&pki, &tokens).await,
+        tls_server(&pki, &tokens).await,
+    );
+    let servers = vec![
+        format!("https://{}", a.address()),
+        format!("https://{}", b.address()),
+    ];
+    let connection = ConnectionConfig {
+        tls_ca_file: Some(pki.ca.clone()),
+        token_file: Some(tokens.clone()),
+        ..ConnectionConfig::default()
+    };
+    let mut cfg = smoke_config(&dir.path().join("runs"));
+    cfg.run.total_env_steps = 2000;
+    cfg.env.num_actors = 2; // one per server, round-robin
+    cfg.env.servers = servers.clone();
+    cfg.env.connection = connection.clone();
+    cfg.validate().unwrap();
+    let summary = train(cfg, &servers, TrainOptions::default())
+        .await
+        .expect("training through TLS and a token");
+    assert!(summary.env_steps >= 2000 && summary.episodes > 0);
+    assert_eq!(summary.eval_return.len(), 2);
+    let saved = std::fs::read_to_string(summary.run_dir.join("config.toml")).unwrap();
+    assert!(saved.contains("[env.connection]") && !saved.contains("e2e-token"));
+
+    let report = evaluate_checkpoint(&summary.run_dir, &servers[1..], &connection, 2)
+        .await
+        .expect("eval through TLS and a token");
+    assert_eq!(report.episodes.len(), 2);
+    a.stop().await.unwrap();
+    b.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_wrong_token_or_a_foreign_ca_fails_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = write_pki(dir.path(), "good");
+    let other = write_pki(dir.path(), "other");
+    let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
+    let server = tls_server(&pki, &tokens).await;
+    let address = format!("https://{}", server.address());
+
+    let wrong = write(
+        dir.path(),
+        "wrong.token",
+        "learner:not-the-token-0123456789\n",
+    );
+    let mut cfg = smoke_config(&dir.path().join("runs"));
+    cfg.env.servers = vec![address.clone()];
+    cfg.env.connection = ConnectionConfig {
+        tls_ca_file: Some(pki.ca.clone()),
+        token_file: Some(wrong),
+        ..ConnectionConfig::default()
+    };
+    let err = train(
+        cfg.clone(),
+        std::slice::from_ref(&address),
+        TrainOptions::default(),
+    )
+    .await
+    .expect_err("a wrong token must not train");
+    let text = err.to_string();
+    assert!(
+        text.contains("Unauthenticated") && text.contains("matches none of this server's tokens"),
+        "{text}"
+    );
+    assert!(!text.contains("not-the-token"), "{text}");
+
+    cfg.env.connection.token_file = None;
+    let credentials = cfg.env.connection.load().unwrap();
+    let client = EnvClient::connect_with_credentials(&address, &credentials)
+        .await
+        .unwrap();
+    let err = client.list_envs().await.expect_err("no token");
+    assert_eq!(
+        err.status_kind(),
+        Some(StatusKind::Unauthenticated),
+        "{err}"
+    );
+
+    let foreign = ConnectionConfig {
+        tls_ca_file: Some(other.ca.clone()),
+        token_file: Some(tokens.clone()),
+        ..ConnectionConfig::default()
+    }
+    .load()
+    .unwrap();
+    let err = EnvClient::connect_with_credentials(&address, &foreign)
+        .await
+        .expect_err("a CA that did not sign the server");
+    assert!(
+        matches!(&err, EnvError::Connect { reason, .. } if reason.starts_with("TLS handshake failed")),
+        "not retried as if the server were down: {err}"
+    );
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutual_tls_needs_the_client_certificate() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = write_pki(dir.path(), "good");
+    let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
+    let client_ca = ["--tls-client-ca".to_string(), pki.ca.display().to_string()];
+    let server = tls_server_with(&pki, &tokens, &client_ca).await;
+    let (cert, key) = write_client_cert(&pki, dir.path());
+    let mut connection = ConnectionConfig {
+        tls_ca_file: Some(pki.ca.clone()),
+        tls_client_cert_file: Some(cert),
+        tls_client_key_file: Some(key),
+        token_file: Some(tokens.clone()),
+    };
+    // A bare host:port is TLS when a CA is given.
+    let client = EnvClient::connect_with_credentials(server.address(), &connection.load().unwrap())
+        .await
+        .unwrap();
+    assert!(
+        client
+            .list_envs()
+            .await
+            .unwrap()
+            .iter()
+            .any(|e| e.env_id == "dst")
+    );
+
+    connection.tls_client_cert_file = None;
+    connection.tls_client_key_file = None;
+    let client = EnvClient::connect_with_credentials(server.address(), &connection.load().unwrap())
+        .await
+        .unwrap();
+    let err = client.list_envs().await.expect_err("no client certificate");
+    // Said plainly and not retried as if the server were down.
+    assert!(err.to_string().contains("CertificateRequired"), "{err}");
+    assert_ne!(err.status_kind(), Some(StatusKind::Unavailable), "{err}");
+    server.stop().await.unwrap();
+}
