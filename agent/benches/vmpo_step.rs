@@ -60,6 +60,7 @@ fn main() {
     cfg.vmpo.batch_size = common::arg("--batch", 128);
     let steps: usize = common::arg("--steps", 10);
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim: REFERENCE + PROPRIO,
         action: ActionKind::Continuous { dim: ACT },
         reward_names: OBJECTIVES.iter().map(|n| (*n).to_string()).collect(),

@@ -17,7 +17,7 @@ use crate::env::grpc::{EnvClient, RemoteEnv};
 use crate::env::{Env, HostTensor, MakeOptions};
 use crate::error::{EnvError, StatusKind};
 use crate::metrics::{EpisodeRecord, RunFiles};
-use crate::nets::{ActorPolicy, PolicySnapshot};
+use crate::nets::{ActionBounds, ActorPolicy, PolicySnapshot};
 use crate::replay::SnippetLayout;
 use crate::replay::adder::{AdderStep, SnippetAdder};
 use crate::schedule::Schedule;
@@ -47,12 +47,12 @@ pub struct ActorContext {
 }
 
 /// Maps policy actions to env actions: continuous ones clipped to [-1, 1] and mapped
-/// linearly onto a finite Box, discrete indices offset by the space's start.
+/// linearly onto a finite Box (`ActionBounds::to_env`), discrete indices offset by the
+/// space's start.
 #[derive(Debug, Clone)]
 pub enum ActionMap {
     /// Box bounds per element (`[D]`).
-    #[allow(missing_docs, reason = "bounds named by their fields")]
-    Continuous { low: Vec<f32>, high: Vec<f32> },
+    Continuous(ActionBounds),
     /// First index of the Discrete space.
     #[allow(missing_docs, reason = "named by its field")]
     Discrete { start: i64 },
@@ -62,10 +62,10 @@ impl ActionMap {
     /// The map for an env action space (Dict spaces are not supported).
     pub fn new(space: &Space) -> Result<Self, EnvError> {
         match space {
-            Space::Box(b) => Ok(ActionMap::Continuous {
+            Space::Box(b) => Ok(ActionMap::Continuous(ActionBounds {
                 low: b.low.iter().map(|&v| v as f32).collect(),
                 high: b.high.iter().map(|&v| v as f32).collect(),
-            }),
+            })),
             Space::Discrete(d) => Ok(ActionMap::Discrete { start: d.start }),
             Space::Dict(_) => Err(EnvError::BadInput {
                 field: "action_space".into(),
@@ -79,24 +79,12 @@ impl ActionMap {
     /// samples, or `[B]` indices).
     pub fn apply(&self, actions: &Tensor, b: usize) -> (HostTensor, Vec<f32>) {
         match self {
-            ActionMap::Continuous { low, high } => {
-                let raw = Vec::<f32>::try_from(&actions.to_kind(Kind::Float).flatten(0, -1))
+            ActionMap::Continuous(bounds) => {
+                let actions = actions.to_kind(Kind::Float);
+                let raw = Vec::<f32>::try_from(&actions.flatten(0, -1)).expect("f32 actions");
+                let env = Vec::<f32>::try_from(&bounds.to_env(&actions).flatten(0, -1))
                     .expect("f32 actions");
-                let d = low.len();
-                let env: Vec<f32> = raw
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &a)| {
-                        let (lo, hi) = (low[i % d], high[i % d]);
-                        let a = a.clamp(-1.0, 1.0);
-                        if lo.is_finite() && hi.is_finite() {
-                            lo + (a + 1.0) * 0.5 * (hi - lo)
-                        } else {
-                            a
-                        }
-                    })
-                    .collect();
-                (HostTensor::from_f32(vec![b, d], &env), raw)
+                (HostTensor::from_f32(vec![b, bounds.low.len()], &env), raw)
             }
             ActionMap::Discrete { start } => {
                 let idx = Vec::<i64>::try_from(&actions.to_kind(Kind::Int64).flatten(0, -1))

@@ -108,6 +108,7 @@ mod tests {
 
     fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
         LearnerDims {
+            action_bounds: None,
             obs_dim,
             action,
             reward_names: vec!["task".into()],

@@ -52,6 +52,7 @@ fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> Learner {
     cfg.mpo.beta_mean = beta_mean;
     cfg.mpo.target_update_period = target_period;
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim: 1,
         action: ActionKind::Continuous { dim: 1 },
         reward_names: vec!["right".into(), "left".into()],

@@ -41,6 +41,7 @@ fn bandit(eps: [f64; 2]) -> Learner {
     cfg.vmpo.beta_mean = 0.01;
     cfg.vmpo.target_update_period = 10;
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim: 1,
         action: ActionKind::Continuous { dim: 1 },
         reward_names: vec!["right".into(), "left".into()],

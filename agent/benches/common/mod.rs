@@ -116,6 +116,7 @@ pub fn run(size: StepSize) -> f64 {
     cfg.mpo.num_samples = arg("--samples", cfg.mpo.num_samples);
     let (t, b) = (cfg.mpo.retrace_length as i64, cfg.mpo.batch_size as i64);
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim,
         action: ActionKind::Continuous { dim: act_dim },
         reward_names: vec!["task".into(), "action_norm".into()],

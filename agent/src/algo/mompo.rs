@@ -13,8 +13,9 @@
 //!    the states acted from, plus a last state bootstrapped into from a real,
 //!    non-terminal step; padding and terminal observations are never acted from, so
 //!    no policy is fitted there. Q_k is the target critic's head for learned
-//!    objectives and `-||a||_2` for the action norm; weights q_k and the temperature
-//!    duals (`estep.rs`).
+//!    objectives and `-||a_env||_2` for the action norm, with a_env the action the env
+//!    executes for the sample (clipped and mapped onto its Box, as the env's reward
+//!    sees it); weights q_k and the temperature duals (`estep.rs`).
 //! 3. **M-step** (eqs. 16-20): weighted maximum likelihood with the decoupled trust
 //!    region (`mstep.rs`); one Adam step on the policy and one on all duals, then the
 //!    dual floor (`dual.rs`).
@@ -25,7 +26,7 @@
 
 use super::batch::SnippetBatch;
 use super::estep::{EStepOutput, exact_estep, sampled_estep};
-use super::objectives::QSource;
+use super::objectives::{QSource, action_norm_q};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec,
@@ -72,10 +73,7 @@ impl Learner {
             .iter()
             .map(|o| match o.source {
                 QSource::Critic { head } => critic_q.select(-1, head as i64),
-                QSource::ActionNorm => -actions
-                    .square()
-                    .sum_dim_intlist(-1, false, Kind::Float)
-                    .sqrt(),
+                QSource::ActionNorm => action_norm_q(actions, self.dims.action_bounds.as_ref()),
             })
             .collect();
         Tensor::stack(&columns, -1)

@@ -3,17 +3,19 @@
 //! and one epsilon), checked against the env's dimensions.
 //!
 //! After binding, the E-step sees K objectives in env order, each either a critic head
-//! or the closed-form action norm `-||a||_2` (appendix A, humanoid run). Critic head c
+//! or the closed-form action norm `-||a||_2` of the executed action (appendix A,
+//! humanoid run). Critic head c
 //! learns the reward `sum_j W[j, c] r_j` (W `[K_env, C]`): a one-hot column for MO-MPO,
 //! the scalarization weights for scalarized MPO.
 
 use crate::config::{
     Architecture, ConfigError, LearnerConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
 };
-use crate::nets::ActionKind;
 pub use crate::nets::LearnerDims;
+use crate::nets::{ActionBounds, ActionKind};
 use crate::spec::ObjectiveSpec;
 use serde::{Deserialize, Serialize};
+use tch::{Kind, Tensor};
 
 /// Where the E-step gets objective k's Q-values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -23,8 +25,25 @@ pub enum QSource {
         /// Critic head index.
         head: usize,
     },
-    /// `-||a||_2` of the sampled action.
+    /// `-||a||_2` of the action the env executes for the sample (`action_norm_q`).
     ActionNorm,
+}
+
+/// The closed-form action-norm Q: `-||a_env||_2` with `a_env` the action the env would
+/// execute for each sample (clipped and mapped onto the Box, `ActionBounds::to_env`),
+/// the very quantity the env's `action_norm` reward penalizes. Without bounds (old
+/// checkpoints) the sample is clipped to [-1, 1].
+/// # Shapes
+/// `actions [..., D] -> [...]`.
+pub fn action_norm_q(actions: &Tensor, bounds: Option<&ActionBounds>) -> Tensor {
+    let executed = match bounds {
+        Some(b) => b.to_env(actions),
+        None => actions.clamp(-1.0, 1.0),
+    };
+    -executed
+        .square()
+        .sum_dim_intlist(-1, false, Kind::Float)
+        .sqrt()
 }
 
 /// One objective of the E-step.
@@ -216,6 +235,32 @@ pub fn bind_config(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_closed_form_action_norm_is_that_of_the_executed_action() {
+        use super::*;
+        // Pendulum: torque in [-2, 2]. Samples -3 and 1.7 are clipped to -1 and 1, then
+        // mapped: -2 and 2; 0.25 maps to 0.5. The env's action_norm is -|u| of those.
+        let pendulum = ActionBounds {
+            low: vec![-2.0],
+            high: vec![2.0],
+        };
+        let samples = Tensor::from_slice(&[-3.0f32, 0.25, 1.7]).reshape([3, 1]);
+        let q = Vec::<f32>::try_from(&action_norm_q(&samples, Some(&pendulum))).unwrap();
+        assert_eq!(q, vec![-2.0, -0.5, -2.0]);
+        // Two dims, one unbounded (left clipped): ||(0.5 + 1.5 * 0.5, 1)|| for bounds
+        // [-1, 2] (center 0.5, half-range 1.5) and sample (0.5, 4).
+        let mixed = ActionBounds {
+            low: vec![-1.0, f32::NEG_INFINITY],
+            high: vec![2.0, f32::INFINITY],
+        };
+        let q = action_norm_q(&Tensor::from_slice(&[0.5f32, 4.0]), Some(&mixed));
+        let want = -(1.25f64.powi(2) + 1.0).sqrt();
+        assert!((q.double_value(&[]) - want).abs() < 1e-6);
+        // No bounds stored: clipped to [-1, 1] only.
+        let q = action_norm_q(&Tensor::from_slice(&[3.0f32, 0.0]), None);
+        assert_eq!(q.double_value(&[]), -1.0);
+    }
+
     use super::*;
 
     fn obj(name: &str, epsilon: f64, source: ObjectiveSource) -> ObjectiveConfig {
@@ -269,6 +314,7 @@ mod tests {
             ..LearnerConfig::default()
         };
         let mut dims = LearnerDims {
+            action_bounds: None,
             obs_dim: 4,
             action: ActionKind::Continuous { dim: 2 },
             reward_names: env(),

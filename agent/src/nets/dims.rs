@@ -3,6 +3,7 @@
 //! reward columns. Networks are built from it; checkpoints store it.
 
 use serde::{Deserialize, Serialize};
+use tch::Tensor;
 
 use super::ActionKind;
 use crate::config::ConfigError;
@@ -17,6 +18,51 @@ pub struct ObsLeaf {
     pub dim: i64,
 }
 
+/// Box bounds of a continuous action space, one pair per action dimension.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActionBounds {
+    /// Lower bound per dimension (`-inf` when unbounded).
+    pub low: Vec<f32>,
+    /// Upper bound per dimension (`+inf` when unbounded).
+    pub high: Vec<f32>,
+}
+
+impl ActionBounds {
+    /// The action the env executes for policy actions `a`: clipped to [-1, 1], then
+    /// mapped linearly onto [low, high] in every dimension whose bounds are both finite
+    /// (left clipped elsewhere). The actor sends exactly this, and the closed-form
+    /// action-norm objective is the norm of exactly this, so MO-MPO and a scalarized
+    /// baseline (which learns from the env's reward) penalize the same quantity.
+    /// # Shapes
+    /// `a [..., D] -> [..., D]`.
+    pub fn to_env(&self, a: &Tensor) -> Tensor {
+        let finite = |d: usize| self.low[d].is_finite() && self.high[d].is_finite();
+        let dims = 0..self.low.len();
+        let center: Vec<f32> = dims
+            .clone()
+            .map(|d| {
+                if finite(d) {
+                    0.5 * (self.low[d] + self.high[d])
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let half: Vec<f32> = dims
+            .map(|d| {
+                if finite(d) {
+                    0.5 * (self.high[d] - self.low[d])
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let device = a.device();
+        a.clamp(-1.0, 1.0) * Tensor::from_slice(&half).to_device(device)
+            + Tensor::from_slice(&center).to_device(device)
+    }
+}
+
 /// Sizes the networks need, taken from an `EnvSpec`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LearnerDims {
@@ -29,6 +75,10 @@ pub struct LearnerDims {
     /// Observation leaves in flattening order (their dims sum to `obs_dim`).
     #[serde(default)]
     pub obs_leaves: Vec<ObsLeaf>,
+    /// Bounds of a continuous action space (`None`: discrete, or a checkpoint from
+    /// before they were stored, whose actions are taken as executed clipped to [-1, 1]).
+    #[serde(default)]
+    pub action_bounds: Option<ActionBounds>,
 }
 
 fn leaves(prefix: &str, space: &Space, out: &mut Vec<ObsLeaf>) {
@@ -68,7 +118,15 @@ impl LearnerDims {
         };
         let mut obs_leaves = Vec::new();
         leaves("", &spec.observation_space, &mut obs_leaves);
+        let action_bounds = match &spec.action_space {
+            Space::Box(b) => Some(ActionBounds {
+                low: b.low.iter().map(|&v| v as f32).collect(),
+                high: b.high.iter().map(|&v| v as f32).collect(),
+            }),
+            _ => None,
+        };
         Ok(Self {
+            action_bounds,
             obs_dim: spec.observation_space.flat_dim() as i64,
             action,
             reward_names: spec

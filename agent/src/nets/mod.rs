@@ -13,7 +13,7 @@ pub mod torso;
 pub mod value;
 
 pub use critic::MultiCritic;
-pub use dims::{LearnerDims, ObsLeaf, ObsSplit};
+pub use dims::{ActionBounds, LearnerDims, ObsLeaf, ObsSplit};
 pub use policy::{
     ActOutput, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
 };

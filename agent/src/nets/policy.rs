@@ -237,6 +237,7 @@ mod tests {
 
     fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
         LearnerDims {
+            action_bounds: None,
             obs_dim,
             action,
             reward_names: vec!["r".into()],

@@ -137,6 +137,7 @@ mod tests {
     #[test]
     fn mocap_torso_reads_proprioception_after_the_latent() {
         let dims = LearnerDims {
+            action_bounds: None,
             obs_dim: 5,
             action: ActionKind::Continuous { dim: 2 },
             reward_names: vec!["a".into()],

@@ -51,6 +51,7 @@ pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> Learn
         },
     ];
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim: OBS,
         action: ActionKind::Continuous { dim: 2 },
         reward_names: vec!["task".into(), "action_norm".into()],
@@ -79,6 +80,7 @@ pub fn discrete_scalarized_learner(target_update_period: u64) -> Learner {
     cfg.mpo.retrace_length = 1;
     cfg.mpo.discount = 0.999;
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim: OBS,
         action: ActionKind::Discrete { n: 4 },
         reward_names: vec!["treasure".into(), "time".into()],
@@ -139,6 +141,7 @@ pub fn movmpo_mocap_learner() -> Learner {
     cfg.vmpo.batch_size = 5;
     cfg.vmpo.target_update_period = 2;
     let dims = LearnerDims {
+        action_bounds: None,
         obs_dim: OBS,
         action: ActionKind::Continuous { dim: 2 },
         reward_names: vec!["task".into(), "effort".into()],
