@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 import env_server
-from env_server import wire
+from env_server import render, wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
 from env_server.registry import Registry
@@ -44,11 +44,12 @@ CAPABILITIES = (
     "info_keys",
     "episode_returns",
     "instance_workers",
+    "render",
 )
 # The transports server.py can serve this service through (`--front`).
 FRONTS = ("auto", "native", "grpcio")
 # Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
-UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "Close")
+UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "Close", "Render")
 # Request and response message classes of every EnvService method, read once from the proto.
 MESSAGE_TYPES = {
     m.name: (getattr(pb, m.input_type.name), getattr(pb, m.output_type.name))
@@ -213,6 +214,15 @@ class EnvService:
         self._session(request.session_id)
         self.close_session(request.session_id, "closed by the client")
         return pb.CloseResponse()
+
+    async def Render(self, request: pb.RenderRequest) -> pb.RenderResponse:
+        # On the loop, like Reset: OpenGL contexts belong to the thread that made them.
+        with self._lock:
+            session = self._session(request.session_id)
+            indices = session.render_indices(request.env_indices)
+            size = render.frame_size(request.width, request.height, len(indices), self.max_message_bytes)
+            frames = session.render(indices, size.width, size.height, request.camera)
+            return pb.RenderResponse(frames=wire.tensor(frames), cameras=session.cameras)
 
     def submit(self, method: str, request: bytes, reply: Reply) -> concurrent.futures.Future:
         """Answer the serialized unary `request` on the loop, from any thread, via `reply`.

@@ -15,7 +15,25 @@ from typing import Any
 
 import numpy as np
 
+from env_server import gl
 from env_server.task import Objective, StepOutcome, Task
+
+
+def camera_names(physics: Any) -> tuple[str, ...]:
+    """The model's named cameras, in id order."""
+    return tuple(physics.model.id2name(i, "camera") or f"camera{i}" for i in range(physics.model.ncam))
+
+
+def physics_frame(physics: Any, width: int, height: int, camera: str | int) -> np.ndarray:
+    """dm_control's own `physics.render`, with its offscreen buffer grown to fit the frame."""
+    gl.require()
+    visual = physics.model.vis.global_
+    if width > visual.offwidth or height > visual.offheight:
+        visual.offwidth = max(visual.offwidth, width)
+        visual.offheight = max(visual.offheight, height)
+        if physics._contexts is not None:  # made at the old size; the next render makes new ones
+            physics._free_rendering_contexts()
+    return physics.render(height=height, width=width, camera_id=camera)
 
 
 class DmcTask(Task):
@@ -24,6 +42,8 @@ class DmcTask(Task):
     description = "any dm_control suite task: dmc:<domain>-<task>, flattened float32 observation"
     # Every Control Suite reward lies in the unit interval (Tassa et al. 2018, section 2).
     objectives: tuple[Objective, ...] = (Objective("reward", "the suite reward", 0.0, 1.0),)
+    #: The camera Render's "" means: the domain's first camera (-1, a free camera, when it has none).
+    default_camera: str | None = None
 
     def __init__(self, domain: str, task: str, environment_kwargs: dict | None = None, **task_kwargs: Any) -> None:
         import gymnasium
@@ -46,6 +66,7 @@ class DmcTask(Task):
         step_limit = getattr(self.env, "_step_limit", math.inf)
         self.max_episode_steps = int(round(step_limit)) if math.isfinite(step_limit) else None
         self._reward = np.zeros(len(self.objectives), np.float32)
+        self.cameras = camera_names(self.env.physics)
 
     def _flatten(self, observation: dict[str, Any]) -> np.ndarray:
         for (key, _), sl in zip(self._obs_specs, self._slices):
@@ -68,6 +89,10 @@ class DmcTask(Task):
         last = ts.last()
         terminated = last and ts.discount == 0.0
         return StepOutcome(self._flatten(ts.observation), self.reward(ts, action), terminated, last and not terminated)
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        default = self.default_camera or (0 if self.cameras else -1)
+        return physics_frame(self.env.physics, width, height, camera or default)
 
     def close(self) -> None:
         self.env.close()
