@@ -42,3 +42,4 @@ pub mod solve;
 pub mod spec;
 pub mod sweep;
 pub mod train;
+pub mod video;

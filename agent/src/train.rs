@@ -23,7 +23,7 @@ use crate::device::{choose_device, configure_threads};
 use crate::env::grpc::EnvClient;
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
-use crate::eval::evaluate;
+use crate::eval::{evaluate, evaluate_recorded};
 use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::{ActionKind, ActorPolicy};
@@ -33,6 +33,7 @@ use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Pace, Schedule};
 use crate::solve::{SolveRecord, SolveTracker};
 use crate::spec::EnvSpec;
+use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -55,6 +56,9 @@ pub enum TrainError {
     /// Writing a figure failed.
     #[error(transparent)]
     Plot(#[from] PlotError),
+    /// Recording a video failed.
+    #[error(transparent)]
+    Video(#[from] crate::video::VideoError),
     /// A run file could not be written.
     #[error("{path}: {source}")]
     Io {
@@ -82,6 +86,8 @@ pub struct TrainOptions {
     pub resume: Option<PathBuf>,
     /// Draw a progress bar.
     pub progress: bool,
+    /// Record videos (under `<run>/videos/`): of the final evaluation, and every N env steps.
+    pub video: Option<VideoPlan>,
 }
 
 /// What a finished run reports (also `summary.json`).
@@ -118,6 +124,8 @@ pub struct TrainSummary {
     /// When the mean of the last 10 training episodes first reached every threshold
     /// (`null` when it never did, or no threshold was given).
     pub solved: Option<SolveRecord>,
+    /// The video of the final evaluation, when videos were asked for.
+    pub eval_video: Option<VideoReport>,
 }
 
 /// Run one training job against the servers at `addresses` (round-robin per actor).
@@ -244,6 +252,23 @@ pub async fn train(
         }));
     }
 
+    let videos = options.video.as_ref().and_then(|plan| {
+        let ctx = PeriodicContext {
+            client: clients[0].clone(),
+            cfg: cfg.clone(),
+            dims: dims.clone(),
+            params: params_rx.clone(),
+            schedule: schedule.clone(),
+            dir: run_dir.join("videos"),
+        };
+        let every = plan.every?;
+        Some(tokio::spawn(record_periodically(
+            ctx,
+            every,
+            plan.options.clone(),
+        )))
+    });
+
     let bar = progress_bar(options.progress, &cfg, &schedule);
     let ticker = {
         let (schedule, latest, bar, names) = (
@@ -280,6 +305,9 @@ pub async fn train(
     }
     schedule.stop(None);
     ticker.abort();
+    if let Some(videos) = videos {
+        videos.abort(); // a video in progress is cut short (its file may be incomplete)
+    }
     let learner = tokio::task::spawn_blocking(move || learner_thread.join())
         .await
         .map_err(|e| TrainError::Stopped(e.to_string()))?
@@ -298,7 +326,25 @@ pub async fn train(
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
-    let eval = evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?;
+    let (eval, eval_video) = match &options.video {
+        Some(plan) => {
+            let path = run_dir.join("videos").join("final.mp4");
+            let (eval, video) = evaluate_recorded(
+                &clients[0],
+                &cfg,
+                policy,
+                cfg.run.eval_episodes,
+                &path,
+                &plan.options,
+            )
+            .await?;
+            (eval, Some(video))
+        }
+        None => (
+            evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?,
+            None,
+        ),
+    };
     let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let summary = TrainSummary {
         run_dir: run_dir.clone(),
@@ -316,6 +362,7 @@ pub async fn train(
         learner_device: format!("{device:?}"),
         solve_threshold: cfg.run.solve_threshold.clone(),
         solved: schedule.solved(),
+        eval_video,
     };
     write_json_atomic(&run_dir.join("summary.json"), &summary).map_err(io(&run_dir))?;
     plot_curves(&run_dir, &objectives)?;

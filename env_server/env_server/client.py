@@ -212,6 +212,7 @@ class RemoteVectorEnv:
         self.num_envs = s.num_envs
         self._action_dtype = spaces.leaf_dtype(self.spec.action_space)
         self.cameras: tuple[str, ...] = ()  # the env's named cameras, known after a render()
+        self.render_fps = 0.0  # real-time frames per second (0 = unknown), known after a render()
         self.closed = False
 
     def reset(self, seed: int | Sequence[int] | None = None, env_indices: Sequence[int] = ()) -> Any:
@@ -266,6 +267,7 @@ class RemoteVectorEnv:
         )
         response = self._channel.call(self._channel.stub.Render, request)
         self.cameras = tuple(response.cameras)
+        self.render_fps = response.fps
         return from_tensor(response.frames)
 
     def close(self) -> None:

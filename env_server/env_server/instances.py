@@ -53,6 +53,7 @@ class TaskInfo:
     info_keys: tuple[str, ...]
     cameras: tuple[str, ...]
     renders: bool  # the Task class implements render
+    render_fps: float
 
     @classmethod
     def of(cls, task: Task) -> TaskInfo:
@@ -65,6 +66,7 @@ class TaskInfo:
             tuple(task.info_keys),
             tuple(task.cameras),
             type(task).render is not Task.render,
+            float(task.render_fps),
         )
 
 

@@ -222,7 +222,7 @@ class EnvService:
             indices = session.render_indices(request.env_indices)
             size = render.frame_size(request.width, request.height, len(indices), self.max_message_bytes)
             frames = session.render(indices, size.width, size.height, request.camera)
-            return pb.RenderResponse(frames=wire.tensor(frames), cameras=session.cameras)
+            return pb.RenderResponse(frames=wire.tensor(frames), cameras=session.cameras, fps=session.render_fps)
 
     def submit(self, method: str, request: bytes, reply: Reply) -> concurrent.futures.Future:
         """Answer the serialized unary `request` on the loop, from any thread, via `reply`.

@@ -392,6 +392,10 @@ class Session:
     def cameras(self) -> tuple[str, ...]:
         return self._instances.info.cameras
 
+    @property
+    def render_fps(self) -> float:
+        return self._instances.info.render_fps
+
     def render_indices(self, env_indices: Sequence[int]) -> list[int]:
         """The instances a Render asks for (all when empty), checked like Reset's."""
         b = self.num_envs

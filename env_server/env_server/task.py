@@ -58,6 +58,8 @@ class Task(abc.ABC):
     info_keys: tuple[str, ...] = ()
     #: Named cameras `render` accepts besides "" (the task's default view).
     cameras: tuple[str, ...] = ()
+    #: Frames per second that play the task in real time (1 / control period); 0 = unknown.
+    render_fps: float = 0.0
 
     observation_space: gymnasium.spaces.Space
     action_space: gymnasium.spaces.Space

@@ -78,6 +78,7 @@ def test_renders(address: str, env_id: str) -> None:
         env.reset()
         env.step(_actions(env.spec.action_space, 0)[0][:1])
         frames = env.render(width=64, height=48)
+        assert env.render_fps > 0
     assert frames.shape == (1, 48, 64, 3) and frames.dtype == np.uint8
     colours = np.unique(frames.reshape(-1, 3), axis=0)
     assert len(colours) >= 3 and frames.std() > 5.0, (env_id, len(colours), frames.std())

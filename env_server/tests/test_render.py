@@ -105,6 +105,7 @@ def test_named_cameras(address) -> None:
         env.reset()
         default = env.render(width=48, height=32)
         assert env.cameras == ("back", "side", "egocentric")
+        assert env.render_fps == pytest.approx(40.0)  # 0.025 s per control step
         side = env.render(width=48, height=32, camera="side")
         back = env.render(width=48, height=32, camera="back")
     np.testing.assert_array_equal(default, side)  # humanoid-run's default view

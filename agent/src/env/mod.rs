@@ -4,6 +4,7 @@
 //! the wire and [`server_process::LocalServer`] starts a local `env_server` for
 //! demos and tests. Shapes: observations `[B, ...]` per leaf, reward `[B, K]`.
 
+pub mod frames;
 pub mod grpc;
 pub mod server_process;
 

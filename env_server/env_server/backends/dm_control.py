@@ -67,6 +67,7 @@ class DmcTask(Task):
         self.max_episode_steps = int(round(step_limit)) if math.isfinite(step_limit) else None
         self._reward = np.zeros(len(self.objectives), np.float32)
         self.cameras = camera_names(self.env.physics)
+        self.render_fps = 1.0 / self.env.control_timestep()
 
     def _flatten(self, observation: dict[str, Any]) -> np.ndarray:
         for (key, _), sl in zip(self._obs_specs, self._slices):

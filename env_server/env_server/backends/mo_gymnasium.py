@@ -39,6 +39,7 @@ class MoGymTask(Task):
         self.action_space = self.env.action_space
         spec = self.env.spec
         self.max_episode_steps = spec.max_episode_steps if spec is not None else None
+        self.render_fps = float(self.env.metadata.get("render_fps") or 0.0)
         self._reward = np.zeros(k, np.float32)
 
     def reset(self, seed: int | None = None) -> tuple[Any, dict[str, Any]]:

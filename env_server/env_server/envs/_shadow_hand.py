@@ -88,6 +88,7 @@ class ShadowHandTask(Task):
     _extra_obs_size = 0
     #: Render's default camera.
     view = VIEW
+    render_fps = 1.0 / (N_SUBSTEPS * 0.002)  # 25 Hz control
 
     def __init__(self) -> None:
         spec = hand_spec()

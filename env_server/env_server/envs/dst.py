@@ -66,6 +66,7 @@ class DeepSeaTreasure(Task):
         Objective("treasure", "the treasure's value on pickup, else 0", 0.0, max(TREASURES.values())),
     )
     max_episode_steps = 200
+    render_fps = 4.0  # a grid world has no real time; slow enough to follow each move
 
     def __init__(self) -> None:
         self.observation_space = gymnasium.spaces.Box(

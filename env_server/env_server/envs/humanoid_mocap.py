@@ -160,6 +160,7 @@ class HumanoidMocap(Task):
         self._vector = np.zeros(len(CHANNELS), np.float32)
         self._reward = np.zeros(len(self.objectives), np.float32)
         self.cameras = camera_names(self.env.physics)
+        self.render_fps = 1.0 / self.env.control_timestep()
 
     # -- helpers --------------------------------------------------------------------------
     def ctrl_from_action(self, action: np.ndarray) -> np.ndarray:

@@ -135,6 +135,7 @@ class SawyerPeg(Task):
     )
     max_episode_steps = 600
     info_keys = ("peg_tip", "wrist_force")
+    render_fps = float(CONTROL_HZ)
 
     def __init__(self) -> None:
         self.model = self._build()

@@ -15,6 +15,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::transport::{Channel, Endpoint};
 
 mod convert;
+mod render;
 
 use convert::{
     autoreset_to_proto, missing, named_from_proto, objective_from_proto, observation_from_proto,

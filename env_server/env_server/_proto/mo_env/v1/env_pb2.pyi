@@ -282,9 +282,11 @@ class RenderRequest(_message.Message):
     def __init__(self, session_id: _Optional[str] = ..., env_indices: _Optional[_Iterable[int]] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., camera: _Optional[str] = ...) -> None: ...
 
 class RenderResponse(_message.Message):
-    __slots__ = ("frames", "cameras")
+    __slots__ = ("frames", "cameras", "fps")
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
+    FPS_FIELD_NUMBER: _ClassVar[int]
     frames: Tensor
     cameras: _containers.RepeatedScalarFieldContainer[str]
-    def __init__(self, frames: _Optional[_Union[Tensor, _Mapping]] = ..., cameras: _Optional[_Iterable[str]] = ...) -> None: ...
+    fps: float
+    def __init__(self, frames: _Optional[_Union[Tensor, _Mapping]] = ..., cameras: _Optional[_Iterable[str]] = ..., fps: _Optional[float] = ...) -> None: ...
