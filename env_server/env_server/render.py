@@ -94,9 +94,14 @@ class MujocoView:
     The renderer is made on the first frame (so Tasks that never render pay nothing) and
     again when the size changes; rendering runs on the thread that made it (the
     server's loop, or a worker's main thread), as OpenGL contexts require.
+
+    Every MuJoCo task in the server draws through this one OpenGL stack (mujoco's
+    GLContext), dm_control's included: after dm_control's own `physics.render` had made
+    its context in the server process, mujoco.Renderer's frames in the same process came
+    back stale (measured with Mesa's EGL).
     """
 
-    def __init__(self, model: Any, data: Any, default: FreeCamera) -> None:
+    def __init__(self, model: Any, data: Any, default: FreeCamera | str) -> None:
         import mujoco
 
         self._mujoco = mujoco
@@ -121,6 +126,7 @@ class MujocoView:
             visual.offwidth = max(visual.offwidth, width)
             visual.offheight = max(visual.offheight, height)
             renderer = self._renderer = mujoco.Renderer(self.model, height, width)
+        camera = camera or (self.default if isinstance(self.default, str) else "")
         if camera:
             view: Any = self.cameras.index(camera)
         else:

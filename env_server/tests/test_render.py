@@ -144,3 +144,22 @@ def test_without_opengl() -> None:
         with RemoteVectorEnv(addr, "dst", 1) as env:
             env.reset()
             assert env.render(width=20, height=22).shape == (1, 22, 20, 3)
+
+
+@pytest.mark.parametrize(("env_id", "action"), [("shadow-turn", 0.5), ("humanoid-mocap", 0.0)])
+def test_frames_follow_the_simulation(address, env_id, action) -> None:
+    """Frames change as the task moves and repeat while it stands still, also after a
+    dm_control task rendered in the same server, and across composer's per-episode
+    recompiles (humanoid-mocap)."""
+    with RemoteVectorEnv(address, "humanoid-run", 1, seed=0) as env:
+        env.reset()
+        env.render(width=32, height=24)
+    with RemoteVectorEnv(address, env_id, 1, seed=0, autoreset="disabled") as env:
+        env.reset()
+        first = env.render(width=64, height=48)
+        np.testing.assert_array_equal(first, env.render(width=64, height=48))
+        for _ in range(5):
+            env.step(np.full((1, *env.spec.action_space.shape), action, np.float32))
+        moved = env.render(width=64, height=48)
+        np.testing.assert_array_equal(moved, env.render(width=64, height=48))
+    assert np.abs(moved.astype(int) - first.astype(int)).mean() > 1.0

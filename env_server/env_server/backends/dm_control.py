@@ -15,25 +15,28 @@ from typing import Any
 
 import numpy as np
 
-from env_server import gl
+from env_server.render import FreeCamera, MujocoView
 from env_server.task import Objective, StepOutcome, Task
 
-
-def camera_names(physics: Any) -> tuple[str, ...]:
-    """The model's named cameras, in id order."""
-    return tuple(physics.model.id2name(i, "camera") or f"camera{i}" for i in range(physics.model.ncam))
+#: The view of a domain without cameras (dm_control's own free-camera default).
+_FREE = FreeCamera(lookat=(0.0, 0.0, 0.5), distance=3.0, azimuth=90.0, elevation=-20.0)
 
 
-def physics_frame(physics: Any, width: int, height: int, camera: str | int) -> np.ndarray:
-    """dm_control's own `physics.render`, with its offscreen buffer grown to fit the frame."""
-    gl.require()
-    visual = physics.model.vis.global_
-    if width > visual.offwidth or height > visual.offheight:
-        visual.offwidth = max(visual.offwidth, width)
-        visual.offheight = max(visual.offheight, height)
-        if physics._contexts is not None:  # made at the old size; the next render makes new ones
-            physics._free_rendering_contexts()
-    return physics.render(height=height, width=width, camera_id=camera)
+def physics_view(physics: Any, default: str | None, current: MujocoView | None = None) -> MujocoView:
+    """Frames of a dm_control Physics (its MuJoCo model and data) from its named cameras;
+    "" means `default`, else the first camera, else a free camera. `current` is reused
+    while it still shows this physics (composer recompiles its physics on reset).
+
+    This is what dm_control's `physics.render(height, width, camera_id)` draws, through
+    render.MujocoView so that every task in a server shares one OpenGL stack.
+    """
+    model, data = physics.model.ptr, physics.data.ptr
+    if current is not None:
+        if current.model is model and current.data is data:
+            return current
+        current.close()
+    first = physics.model.id2name(0, "camera") if physics.model.ncam else None
+    return MujocoView(model, data, default or first or _FREE)
 
 
 class DmcTask(Task):
@@ -42,7 +45,7 @@ class DmcTask(Task):
     description = "any dm_control suite task: dmc:<domain>-<task>, flattened float32 observation"
     # Every Control Suite reward lies in the unit interval (Tassa et al. 2018, section 2).
     objectives: tuple[Objective, ...] = (Objective("reward", "the suite reward", 0.0, 1.0),)
-    #: The camera Render's "" means: the domain's first camera (-1, a free camera, when it has none).
+    #: The camera Render's "" means: None = the domain's first camera (a free camera when it has none).
     default_camera: str | None = None
 
     def __init__(self, domain: str, task: str, environment_kwargs: dict | None = None, **task_kwargs: Any) -> None:
@@ -66,7 +69,8 @@ class DmcTask(Task):
         step_limit = getattr(self.env, "_step_limit", math.inf)
         self.max_episode_steps = int(round(step_limit)) if math.isfinite(step_limit) else None
         self._reward = np.zeros(len(self.objectives), np.float32)
-        self.cameras = camera_names(self.env.physics)
+        self._view = physics_view(self.env.physics, self.default_camera)
+        self.cameras = self._view.cameras
         self.render_fps = 1.0 / self.env.control_timestep()
 
     def _flatten(self, observation: dict[str, Any]) -> np.ndarray:
@@ -92,8 +96,9 @@ class DmcTask(Task):
         return StepOutcome(self._flatten(ts.observation), self.reward(ts, action), terminated, last and not terminated)
 
     def render(self, width: int, height: int, camera: str) -> np.ndarray:
-        default = self.default_camera or (0 if self.cameras else -1)
-        return physics_frame(self.env.physics, width, height, camera or default)
+        self._view = physics_view(self.env.physics, self.default_camera, self._view)
+        return self._view.render(width, height, camera)
 
     def close(self) -> None:
+        self._view.close()
         self.env.close()

@@ -53,7 +53,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from env_server.backends.dm_control import camera_names, physics_frame
+from env_server.backends.dm_control import physics_view
 from env_server.task import Objective, StepOutcome, Task
 
 #: dm_control "comic" channel -> (our objective, the weight dm_control multiplies it by).
@@ -159,7 +159,8 @@ class HumanoidMocap(Task):
             )
         self._vector = np.zeros(len(CHANNELS), np.float32)
         self._reward = np.zeros(len(self.objectives), np.float32)
-        self.cameras = camera_names(self.env.physics)
+        self._view = physics_view(self.env.physics, DEFAULT_CAMERA)
+        self.cameras = self._view.cameras
         self.render_fps = 1.0 / self.env.control_timestep()
 
     # -- helpers --------------------------------------------------------------------------
@@ -213,7 +214,9 @@ class HumanoidMocap(Task):
         )
 
     def render(self, width: int, height: int, camera: str) -> np.ndarray:
-        return physics_frame(self.env.physics, width, height, camera or DEFAULT_CAMERA)
+        self._view = physics_view(self.env.physics, DEFAULT_CAMERA, self._view)
+        return self._view.render(width, height, camera)
 
     def close(self) -> None:
+        self._view.close()
         self.env.close()
