@@ -34,5 +34,17 @@ if [ "$(cat "$native_stamp" 2>/dev/null)" != "$native_want" ] || ! .venv/bin/pyt
   echo "$native_want" > "$native_stamp"
 fi
 
+# Offscreen MuJoCo rendering (the Render RPC, videos) needs a headless OpenGL: EGL or
+# OSMesa, here Mesa's software renderers (env_server/gl.py picks one when serving).
+if [ "$(.venv/bin/python -c 'from env_server import gl; print(gl.detect())')" = disable ]; then
+  gl_packages="libegl1 libegl-mesa0 libosmesa6"
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "==> installing Mesa's software OpenGL for offscreen rendering: apt-get install $gl_packages"
+    apt-get install -y -qq $gl_packages >/dev/null || { apt-get update -qq && apt-get install -y -qq $gl_packages >/dev/null; }
+  else
+    echo "==> no headless OpenGL found: MuJoCo frames (Render, videos) need: sudo apt-get install $gl_packages"
+  fi
+fi
+
 # The Rust side needs nothing else: .cargo/config.toml points libtorch's build at
 # .venv, and cargo fetches the crates on first build (done by the callers).

@@ -7,7 +7,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
-export MUJOCO_GL=${MUJOCO_GL:-disable}
+# MUJOCO_GL stays as the caller set it: unset, env_server picks a headless OpenGL backend
+# (EGL or OSMesa, which setup.sh installs) so the rendering tests really render.
 
 echo "==> format and lints (cargo fmt, ruff, clippy)"
 cargo fmt --all --check

@@ -10,13 +10,44 @@ use tch::{Device, Tensor};
 use crate::actor::ActionMap;
 use crate::algo::Learner;
 use crate::env::connection::ConnectionConfig;
-use crate::env::grpc::EnvClient;
-use crate::env::{Env, EpisodeSummary};
+use crate::env::grpc::{EnvClient, RemoteEnv};
+use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
 use crate::learner::latest_checkpoint;
 use crate::nets::ActorPolicy;
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, connect_all, make_options, mean_of, probe_spec};
+use crate::video::{Recorder, VideoOptions, VideoReport};
+
+/// Watches an evaluation session after its reset and after every step (a video
+/// [`Recorder`] renders it); its errors include the session's own.
+#[allow(
+    async_fn_in_trait,
+    reason = "used with concrete types inside this crate's runtime"
+)]
+pub trait EvalObserver {
+    /// What observing can fail with.
+    type Error: From<EnvError>;
+    /// The session was just reset (all instances).
+    async fn on_reset(&mut self, env: &RemoteEnv) -> Result<(), Self::Error>;
+    /// The session just took `step`.
+    async fn on_step(&mut self, env: &RemoteEnv, step: &StepResult) -> Result<(), Self::Error>;
+}
+
+/// Observes nothing.
+struct Unobserved;
+
+impl EvalObserver for Unobserved {
+    type Error = EnvError;
+
+    async fn on_reset(&mut self, _: &RemoteEnv) -> Result<(), EnvError> {
+        Ok(())
+    }
+
+    async fn on_step(&mut self, _: &RemoteEnv, _: &StepResult) -> Result<(), EnvError> {
+        Ok(())
+    }
+}
 
 /// Run the deterministic policy until `episodes` episodes finish; the server's summaries.
 pub async fn evaluate(
@@ -25,6 +56,34 @@ pub async fn evaluate(
     policy: ActorPolicy,
     episodes: usize,
 ) -> Result<Vec<EpisodeSummary>, EnvError> {
+    evaluate_observed(client, cfg, policy, episodes, &mut Unobserved).await
+}
+
+/// [`evaluate`], with a video of the evaluation written to `path` (instances tiled).
+pub async fn evaluate_recorded(
+    client: &EnvClient,
+    cfg: &TrainConfig,
+    policy: ActorPolicy,
+    episodes: usize,
+    path: &Path,
+    video: &VideoOptions,
+) -> Result<(Vec<EpisodeSummary>, VideoReport), crate::video::VideoError> {
+    let spec = probe_spec(client, cfg).await?;
+    let objectives = spec.objectives.iter().map(|o| o.name.clone()).collect();
+    let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
+    let mut recorder = Recorder::new(path, video.clone(), objectives, num_envs)?;
+    let done = evaluate_observed(client, cfg, policy, episodes, &mut recorder).await?;
+    Ok((done, recorder.finish()?))
+}
+
+/// The evaluation loop, reporting to `observer`.
+pub async fn evaluate_observed<O: EvalObserver>(
+    client: &EnvClient,
+    cfg: &TrainConfig,
+    policy: ActorPolicy,
+    episodes: usize,
+    observer: &mut O,
+) -> Result<Vec<EpisodeSummary>, O::Error> {
     let num_envs = episodes.clamp(1, cfg.env.num_envs.max(1));
     // Seeds disjoint from the training sessions'.
     let mut env = client
@@ -34,12 +93,14 @@ pub async fn evaluate(
     let map = ActionMap::new(&env.spec().action_space)?;
     let o = env.spec().observation_space.flat_dim();
     let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
+    observer.on_reset(&env).await?;
     let mut done = Vec::new();
     while done.len() < episodes {
         let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
         let out = tch::no_grad(|| policy.act(&obs_t, true));
         let (action, _) = map.apply(&out.actions, num_envs);
         let step = env.step(&action).await?;
+        observer.on_step(&env, &step).await?;
         done.extend(step.episodes);
         obs = step.observation.to_flat_f32();
     }
@@ -63,17 +124,20 @@ pub struct EvalReport {
     pub mean_discounted_return: Vec<f64>,
     /// γ of the discounted returns.
     pub discount: f64,
+    /// The video of the evaluation, when one was asked for.
+    pub video: Option<VideoReport>,
 }
 
 /// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
 /// `checkpoints/step_<n>` directory) with the deterministic policy, against
 /// `addresses` reached as `connection` says (not the run's own `env.connection`: the
-/// servers may differ).
+/// servers may differ), recording a video to `video`'s path when given.
 pub async fn evaluate_checkpoint(
     path: &Path,
     addresses: &[String],
     connection: &ConnectionConfig,
     episodes: usize,
+    video: Option<(&Path, &VideoOptions)>,
 ) -> Result<EvalReport, TrainError> {
     let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
         (path.to_path_buf(), latest_checkpoint(path)?.0)
@@ -95,7 +159,14 @@ pub async fn evaluate_checkpoint(
     let clients = connect_all(addresses, connection).await?;
     let spec = probe_spec(&clients[0], &cfg).await?;
     drop(learner);
-    let done = evaluate(&clients[0], &cfg, policy, episodes).await?;
+    let (done, video) = match video {
+        Some((out, options)) => {
+            let (done, report) =
+                evaluate_recorded(&clients[0], &cfg, policy, episodes, out, options).await?;
+            (done, Some(report))
+        }
+        None => (evaluate(&clients[0], &cfg, policy, episodes).await?, None),
+    };
     Ok(EvalReport {
         checkpoint: ckpt,
         objectives: spec.objectives.iter().map(|o| o.name.clone()).collect(),
@@ -103,5 +174,6 @@ pub async fn evaluate_checkpoint(
         mean_discounted_return: mean_of(done.iter().map(|e| &e.discounted_return)),
         discount: spec.discount,
         episodes: done,
+        video,
     })
 }

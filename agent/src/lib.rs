@@ -43,3 +43,4 @@ pub mod spec;
 pub mod sweep;
 pub mod tensorboard;
 pub mod train;
+pub mod video;

@@ -14,8 +14,9 @@ use agent::metrics::{format_value, format_vector};
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
 use agent::train::{TrainOptions, TrainSummary, train};
+use agent::video::{VideoOptions, VideoPlan};
 use anyhow::{Context, Result, bail};
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 
@@ -53,6 +54,12 @@ enum Command {
         /// Override learner.device.
         #[arg(long, value_enum)]
         device: Option<DeviceChoice>,
+        /// Every N env steps, write a video of one deterministic episode of the current
+        /// policy to <run>/videos/, and one of the final evaluation (videos/final.mp4).
+        #[arg(long, value_name = "N")]
+        video_every: Option<u64>,
+        #[command(flatten)]
+        video: VideoArgs,
     },
     /// Train every setting of an ε (or weight) grid, evaluate, and write the Pareto front.
     Sweep {
@@ -68,6 +75,11 @@ enum Command {
         /// Override learner.device of every run.
         #[arg(long, value_enum)]
         device: Option<DeviceChoice>,
+        /// Write a video of every run's final evaluation (<run>/videos/final.mp4).
+        #[arg(long)]
+        video: bool,
+        #[command(flatten)]
+        video_args: VideoArgs,
     },
     /// Evaluate a checkpoint with the deterministic policy; returns come from the server.
     Eval {
@@ -84,6 +96,12 @@ enum Command {
         /// How to reach --server (the run's own env.connection is not used).
         #[command(flatten)]
         connection: ConnectionArgs,
+        /// Write a video of the evaluation here (e.g. out.mp4; .webm and .gif work too):
+        /// the instances tiled, each objective's running return under its frame.
+        #[arg(long, value_name = "PATH")]
+        video: Option<PathBuf>,
+        #[command(flatten)]
+        video_args: VideoArgs,
     },
     /// List the envs a server offers, with their objectives.
     Envs {
@@ -155,6 +173,34 @@ impl ConnectionArgs {
     }
 }
 
+/// How videos are rendered (with `--video` or `--video-every`).
+#[derive(Debug, Clone, Args)]
+struct VideoArgs {
+    /// Width of each instance's frame in pixels (0 = the server's default, 320).
+    #[arg(long, default_value_t = 0)]
+    video_width: u32,
+    /// Height of each instance's frame in pixels (0 = the server's default, 240).
+    #[arg(long, default_value_t = 0)]
+    video_height: u32,
+    /// Camera the env names ("" = the task's default view).
+    #[arg(long, default_value = "")]
+    video_camera: String,
+    /// Frames per second (default: the task's real time, or 30 when it does not say).
+    #[arg(long)]
+    video_fps: Option<f64>,
+}
+
+impl VideoArgs {
+    fn options(&self) -> VideoOptions {
+        VideoOptions {
+            width: self.video_width,
+            height: self.video_height,
+            camera: self.video_camera.clone(),
+            fps: self.video_fps,
+        }
+    }
+}
+
 fn main() -> Result<()> {
     // Before the runtime's threads exist: mallopt's settings are process-wide.
     agent::device::tune_allocator();
@@ -180,6 +226,8 @@ async fn run() -> Result<()> {
             total_env_steps,
             overrides,
             device,
+            video_every,
+            video,
         } => {
             let path = match (&resume, config) {
                 (Some(dir), _) => dir.join("config.toml"),
@@ -207,6 +255,10 @@ async fn run() -> Result<()> {
                 TrainOptions {
                     resume,
                     progress: true,
+                    video: video_every.map(|every| VideoPlan {
+                        every: Some(every),
+                        options: video.options(),
+                    }),
                 },
             )
             .await;
@@ -225,6 +277,8 @@ async fn run() -> Result<()> {
             servers,
             connection,
             device,
+            video,
+            video_args,
         } => {
             let (sweep_cfg, mut base) = SweepConfig::load(&config)
                 .with_context(|| format!("loading {}", config.display()))?;
@@ -239,7 +293,8 @@ async fn run() -> Result<()> {
             base.env.connection = connection.apply(base.env.connection);
             base.validate()?;
             let (addresses, local) = server_addresses(&configured, &base.env.connection).await?;
-            let result = sweep(&sweep_cfg, &base, &addresses, true).await;
+            let options = video.then(|| video_args.options());
+            let result = sweep(&sweep_cfg, &base, &addresses, true, options.as_ref()).await;
             if let Some(local) = local {
                 local.stop().await?;
             }
@@ -326,11 +381,16 @@ async fn run() -> Result<()> {
             episodes,
             servers,
             connection,
+            video,
+            video_args,
         } => {
             let connection = connection.apply(ConnectionConfig::default());
             connection.validate()?;
             let (addresses, local) = server_addresses(&servers, &connection).await?;
-            let report = evaluate_checkpoint(&checkpoint, &addresses, &connection, episodes).await;
+            let options = video_args.options();
+            let video = video.as_deref().map(|path| (path, &options));
+            let report =
+                evaluate_checkpoint(&checkpoint, &addresses, &connection, episodes, video).await;
             if let Some(local) = local {
                 local.stop().await?;
             }
@@ -356,6 +416,9 @@ async fn run() -> Result<()> {
                 r.discount,
                 format_vector(&r.mean_discounted_return)
             );
+            if let Some(v) = &r.video {
+                println!("  wrote {} ({} frames)", v.path.display(), v.frames);
+            }
         }
         Command::Envs { server, connection } => {
             let (client, local) = connect(server, connection).await?;
@@ -447,6 +510,13 @@ fn print_summary(s: &TrainSummary) {
         s.env_steps, s.learner_steps, s.episodes, s.wall_seconds, s.learner_device
     );
     println!("  objectives             [{names}]");
+    if let Some(v) = &s.eval_video {
+        println!(
+            "  evaluation video       {} ({} frames)",
+            v.path.display(),
+            v.frames
+        );
+    }
     println!(
         "  recent training return {}",
         format_vector(&s.recent_train_return)

@@ -26,7 +26,7 @@ use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::EnvClient;
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
-use crate::eval::evaluate;
+use crate::eval::{evaluate, evaluate_recorded};
 use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::{ActionKind, ActorPolicy};
@@ -36,6 +36,7 @@ use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Pace, Schedule};
 use crate::solve::{SolveRecord, SolveTracker};
 use crate::spec::EnvSpec;
+use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -58,6 +59,9 @@ pub enum TrainError {
     /// Writing a figure failed.
     #[error(transparent)]
     Plot(#[from] PlotError),
+    /// Recording a video failed.
+    #[error(transparent)]
+    Video(#[from] crate::video::VideoError),
     /// A run file could not be written.
     #[error("{path}: {source}")]
     Io {
@@ -85,6 +89,8 @@ pub struct TrainOptions {
     pub resume: Option<PathBuf>,
     /// Draw a progress bar.
     pub progress: bool,
+    /// Record videos (under `<run>/videos/`): of the final evaluation, and every N env steps.
+    pub video: Option<VideoPlan>,
 }
 
 /// What a finished run reports (also `summary.json`).
@@ -124,6 +130,8 @@ pub struct TrainSummary {
     /// The signal (`Ctrl-C`, `SIGTERM`) that stopped the run before its budget; `null`
     /// when it ran to the end. An interrupted run has no evaluation episodes.
     pub interrupted: Option<String>,
+    /// The video of the final evaluation, when videos were asked for.
+    pub eval_video: Option<VideoReport>,
 }
 
 /// Run one training job against the servers at `addresses` (round-robin per actor).
@@ -253,6 +261,23 @@ pub async fn train(
         }));
     }
 
+    let videos = options.video.as_ref().and_then(|plan| {
+        let ctx = PeriodicContext {
+            client: clients[0].clone(),
+            cfg: cfg.clone(),
+            dims: dims.clone(),
+            params: params_rx.clone(),
+            schedule: schedule.clone(),
+            dir: run_dir.join("videos"),
+        };
+        let every = plan.every?;
+        Some(tokio::spawn(record_periodically(
+            ctx,
+            every,
+            plan.options.clone(),
+        )))
+    });
+
     let bar = progress_bar(options.progress, &cfg, &schedule);
     let ticker = {
         let (schedule, latest, bar, names) = (
@@ -297,6 +322,9 @@ pub async fn train(
     }
     schedule.stop(None);
     ticker.abort();
+    if let Some(videos) = videos {
+        videos.abort(); // a video in progress is cut short (its file may be incomplete)
+    }
     let learner = tokio::task::spawn_blocking(move || learner_thread.join())
         .await
         .map_err(|e| TrainError::Stopped(e.to_string()))?
@@ -316,9 +344,25 @@ pub async fn train(
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
     // Whoever stopped the run wants it to end soon: no evaluation episodes then.
-    let eval = match counters.interrupted {
-        Some(_) => Vec::new(),
-        None => evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?,
+    let (eval, eval_video) = match (&counters.interrupted, &options.video) {
+        (Some(_), _) => (Vec::new(), None),
+        (None, Some(plan)) => {
+            let path = run_dir.join("videos").join("final.mp4");
+            let (eval, video) = evaluate_recorded(
+                &clients[0],
+                &cfg,
+                policy,
+                cfg.run.eval_episodes,
+                &path,
+                &plan.options,
+            )
+            .await?;
+            (eval, Some(video))
+        }
+        (None, None) => (
+            evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?,
+            None,
+        ),
     };
     let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let summary = TrainSummary {
@@ -338,6 +382,7 @@ pub async fn train(
         solve_threshold: cfg.run.solve_threshold.clone(),
         solved: schedule.solved(),
         interrupted: counters.interrupted.clone(),
+        eval_video,
     };
     if !summary.eval_episodes.is_empty() {
         let mut scalars = files.per_objective("eval/return", &summary.eval_return);

@@ -5,9 +5,10 @@ adapters (`gym:`, `mo:`, `dmc:`) and any Task registered through the
 `env_server.envs` entry-point group. `env_server.client` is the Python client.
 """
 
-import os as _os
+from env_server import gl as _gl
 
-# Headless by default: dm_control and mujoco otherwise try to open a display.
-_os.environ.setdefault("MUJOCO_GL", "disable")
+# Before mujoco or dm_control is imported: a headless OpenGL backend (or none), never a
+# display; a MUJOCO_GL set by the user wins (see env_server/gl.py).
+_gl.choose()
 
 __version__ = "0.1.0"

@@ -5,7 +5,9 @@
         obs, reward, terminated, truncated, infos = env.step(actions)   # reward [B, K]
 
 `RemoteEnv` is a single-instance `gymnasium.Env` whose reward is a float32 vector of K
-entries, like MO-Gymnasium (with a `reward_space` attribute). Failed calls raise
+entries, like MO-Gymnasium (with a `reward_space` attribute); with
+`render_mode="rgb_array"` its `render()` returns the current frame, so gymnasium's
+`RecordVideo` records it. Failed calls raise
 `RemoteError` (or a subclass) carrying the gRPC code and message; only UNAVAILABLE
 is retried, with exponential backoff.
 
@@ -188,6 +190,8 @@ class RemoteVectorEnv:
         )
         self.num_envs = s.num_envs
         self._action_dtype = spaces.leaf_dtype(self.spec.action_space)
+        self.cameras: tuple[str, ...] = ()  # the env's named cameras, known after a render()
+        self.render_fps = 0.0  # real-time frames per second (0 = unknown), known after a render()
         self.closed = False
 
     def reset(self, seed: int | Sequence[int] | None = None, env_indices: Sequence[int] = ()) -> Any:
@@ -231,6 +235,20 @@ class RemoteVectorEnv:
             infos,
         )
 
+    def render(self, env_indices: Sequence[int] = (), width: int = 0, height: int = 0, camera: str = "") -> np.ndarray:
+        """uint8 [len(env_indices) or B, height, width, 3]: the instances' current RGB frames.
+
+        0 = the server's default size (320 x 240); camera "" = the task's default view
+        (`cameras` lists the others once a frame was rendered).
+        """
+        request = pb.RenderRequest(
+            session_id=self.session_id, env_indices=list(env_indices), width=width, height=height, camera=camera
+        )
+        response = self._channel.call(self._channel.stub.Render, request)
+        self.cameras = tuple(response.cameras)
+        self.render_fps = response.fps
+        return from_tensor(response.frames)
+
     def close(self) -> None:
         if self.closed:
             return
@@ -267,11 +285,36 @@ class RemoteEnv(gymnasium.Env):
     in `info["server_episode"]` (vector `episode_return` and `discounted_return`,
     `length`, ...). Not `info["episode"]`: gymnasium's RecordEpisodeStatistics and
     MO-Gymnasium's MORecordEpisodeStatistics write that key and assert it is free.
+
+    `render_mode="rgb_array"` (gymnasium's convention) makes `render()` return the current
+    frame, uint8 [render_height, render_width, 3] from `render_camera` ("" = the task's
+    default view); `render_fps` is what video writers such as `RecordVideo` read from
+    `metadata`. The connection keywords (module docstring) go to the connection; other
+    keyword arguments go to the env's constructor on the server.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, address: str, env_id: str, seed: int | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        address: str,
+        env_id: str,
+        seed: int | None = None,
+        *,
+        render_mode: str | None = None,
+        render_width: int = 0,
+        render_height: int = 0,
+        render_camera: str = "",
+        render_fps: float = 30,
+        **kwargs: Any,
+    ) -> None:
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(
+                f"render_mode: expected None or one of {self.metadata['render_modes']}, got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        self._render_args = (render_width, render_height, render_camera)
+        self.metadata = {**self.metadata, "render_fps": render_fps}
         self._vec = RemoteVectorEnv(address, env_id, 1, seed, autoreset=Autoreset.DISABLED, **kwargs)
         spec = self._vec.spec
         self.observation_space = spec.observation_space
@@ -297,6 +340,13 @@ class RemoteEnv(gymnasium.Env):
         if infos["episodes"]:
             info["server_episode"] = infos["episodes"][0]
         return _first(obs), reward[0].copy(), bool(terminated[0]), bool(truncated[0]), info
+
+    def render(self) -> np.ndarray | None:
+        """The current frame (render_mode "rgb_array"), else None as gymnasium's envs do."""
+        if self.render_mode is None:
+            return None
+        width, height, camera = self._render_args
+        return self._vec.render((0,), width, height, camera)[0]
 
     def close(self) -> None:
         self._vec.close()

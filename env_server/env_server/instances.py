@@ -51,6 +51,9 @@ class TaskInfo:
     objectives: tuple[Objective, ...]
     max_episode_steps: int | None
     info_keys: tuple[str, ...]
+    cameras: tuple[str, ...]
+    renders: bool  # the Task class implements render
+    render_fps: float
 
     @classmethod
     def of(cls, task: Task) -> TaskInfo:
@@ -61,6 +64,9 @@ class TaskInfo:
             tuple(task.objectives),
             task.max_episode_steps,
             tuple(task.info_keys),
+            tuple(task.cameras),
+            type(task).render is not Task.render,
+            float(task.render_fps),
         )
 
 
@@ -80,8 +86,18 @@ class Outcomes:
     resets: list[ResetOutcome]
 
 
+@dataclasses.dataclass(frozen=True)
+class RenderBatch:
+    """Frames of these instances, all of one size and camera."""
+
+    indices: list[int]
+    width: int
+    height: int
+    camera: str
+
+
 class InstanceFailure(Exception):
-    """Instance `index` raised (or its worker died) in `what` ("step" or "reset").
+    """Instance `index` raised (or its worker died) in `what` ("step", "reset" or "render").
 
     `error` is "<ExceptionType>: <message>"; the exception itself may live in another
     process. The Session turns this into a SimulatorError naming env, session and instance.
@@ -119,6 +135,10 @@ class Instances(abc.ABC):
         """
 
     @abc.abstractmethod
+    def render(self, batch: RenderBatch) -> list[Any]:
+        """One frame per index of `batch`, in its order; failures as in `run`."""
+
+    @abc.abstractmethod
     def close(self) -> None:
         """Close every instance; errors are logged, never raised."""
 
@@ -141,6 +161,20 @@ def _run_tasks(
     except Exception as exc:
         raise InstanceFailure.of(i, what, exc) from exc
     return out
+
+
+def _render_tasks(tasks: Mapping[int, Task], batch: RenderBatch) -> list[Any]:
+    """The render loop shared by LocalInstances and the worker processes."""
+    frames = []
+    i = -1
+    try:
+        for i in batch.indices:
+            frames.append(tasks[i].render(batch.width, batch.height, batch.camera))
+    except EnvServerError:
+        raise
+    except Exception as exc:
+        raise InstanceFailure.of(i, "render", exc) from exc
+    return frames
 
 
 def _build_tasks(build: Callable[[], Task], indices: Iterable[int]) -> dict[int, Task]:
@@ -182,6 +216,9 @@ class LocalInstances(Instances):
     def run(self, steps: Sequence[tuple[int, Any]], resets: Sequence[tuple[int, int | None]]) -> Outcomes:
         return _run_tasks(self._by_index, steps, resets)
 
+    def render(self, batch: RenderBatch) -> list[Any]:
+        return _render_tasks(self._by_index, batch)
+
     def close(self) -> None:
         _close_tasks(self._by_index)
 
@@ -217,7 +254,10 @@ def _worker_main(conn: multiprocessing.connection.Connection, build: Callable[[]
             if batch is None:
                 return
             try:
-                reply: Any = _run_tasks(tasks, *batch)
+                if isinstance(batch, RenderBatch):
+                    reply: Any = _render_tasks(tasks, batch)
+                else:
+                    reply = _run_tasks(tasks, *batch)
                 conn.send(reply)
             except EnvServerError as exc:
                 conn.send(_Failed(exc))
@@ -341,6 +381,35 @@ class WorkerInstances(Instances):
             [next(step_iters[self._share[i]]) for i, _ in steps],
             [next(reset_iters[self._share[i]]) for i, _ in resets],
         )
+
+    def render(self, batch: RenderBatch) -> list[Any]:
+        n = len(self._workers) + 1
+        shares: list[list[int]] = [[] for _ in range(n)]
+        for i in batch.indices:
+            shares[self._share[i]].append(i)
+        failures: dict[int, EnvServerError | InstanceFailure] = {}
+        sent = []
+        for s in range(1, n):
+            if shares[s]:
+                try:
+                    self._workers[s - 1].conn.send(dataclasses.replace(batch, indices=shares[s]))
+                    sent.append(s)
+                except OSError:
+                    failures[s] = self._died(self._workers[s - 1], "render")
+        replies: dict[int, list[Any]] = {}
+        try:
+            replies[0] = _render_tasks(self._local, dataclasses.replace(batch, indices=shares[0]))
+        except (EnvServerError, InstanceFailure) as exc:
+            failures[0] = exc
+        for s in sent:  # every reply is read, even after a failure, so the pipes stay in step
+            try:
+                replies[s] = self._receive(self._workers[s - 1], "render")
+            except (EnvServerError, InstanceFailure) as exc:
+                failures[s] = exc
+        if failures:
+            raise failures[min(failures)]
+        frames = {s: iter(reply) for s, reply in replies.items()}
+        return [next(frames[self._share[i]]) for i in batch.indices]
 
     def close(self) -> None:
         for worker in self._workers:

@@ -29,6 +29,7 @@ from typing import Any
 import grpc
 from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 
+from env_server import gl
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
@@ -281,7 +282,7 @@ async def serve(
     print(f"LISTENING {_bind_address(host, running.port)}", flush=True)
     log.info(
         "serving %s on %s through the %s front, %s, %s (max sessions %d, max message %d bytes, lease %g s, "
-        "max workers %d)",
+        "max workers %d, MuJoCo rendering through MUJOCO_GL=%s)",
         SERVICE_NAME,
         _bind_address(host, running.port),
         front,
@@ -291,6 +292,7 @@ async def serve(
         max_message_bytes,
         lease_seconds,
         max_workers,
+        gl.backend(),
     )
     reaper = asyncio.create_task(service.reap())
     stop = stop or asyncio.Event()

@@ -31,7 +31,7 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 import env_server
-from env_server import wire
+from env_server import render, wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
 from env_server.registry import Registry
@@ -51,11 +51,12 @@ CAPABILITIES = (
     "episode_returns",
     "instance_workers",
     "close_session",
+    "render",
 )
 # The transports server.py can serve this service through (`--front`).
 FRONTS = ("auto", "native", "grpcio")
 # Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
-UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "CloseSession", "Close")
+UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "CloseSession", "Close", "Render")
 # Request and response message classes of every EnvService method, read once from the proto.
 MESSAGE_TYPES = {
     m.name: (getattr(pb, m.input_type.name), getattr(pb, m.output_type.name))
@@ -236,6 +237,15 @@ class EnvService:
     # The deprecated name of CloseSession (gRPC's JavaScript library hides the channel's
     # own close() behind an RPC named Close); still served for older clients.
     Close = CloseSession
+
+    async def Render(self, request: pb.RenderRequest, owner: str | None = None) -> pb.RenderResponse:
+        # On the loop, like Reset: OpenGL contexts belong to the thread that made them.
+        with self._lock:
+            session = self._session(request.session_id, owner)
+            indices = session.render_indices(request.env_indices)
+            size = render.frame_size(request.width, request.height, len(indices), self.max_message_bytes)
+            frames = session.render(indices, size.width, size.height, request.camera)
+            return pb.RenderResponse(frames=wire.tensor(frames), cameras=session.cameras, fps=session.render_fps)
 
     def submit(self, method: str, request: bytes, reply: Reply, owner: str | None = None) -> concurrent.futures.Future:
         """Answer the serialized unary `request` of client `owner` on the loop, from any

@@ -27,7 +27,7 @@ import numpy as np
 
 from env_server import spaces
 from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError, quote
-from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, build_instances
+from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, RenderBatch, build_instances
 from env_server.registry import EnvEntry
 from env_server.task import Objective, Task
 
@@ -387,6 +387,65 @@ class Session:
                 self._ended[ended] = True
         info = [(key, self._info[key]) for key in self._info_keys if key in self._info]
         return StepResult(self._obs_out, reward, terminated, truncated, info, episodes, finals)
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return self._instances.info.cameras
+
+    @property
+    def render_fps(self) -> float:
+        return self._instances.info.render_fps
+
+    def render_indices(self, env_indices: Sequence[int]) -> list[int]:
+        """The instances a Render asks for (all when empty), checked like Reset's."""
+        b = self.num_envs
+        indices = list(env_indices) if len(env_indices) else list(range(b))
+        for i in indices:
+            if not 0 <= i < b:
+                raise InvalidArgument(f"env_indices: expected 0 <= index < {b} (num_envs={b}), got {i}")
+        return indices
+
+    def render(self, indices: Sequence[int], width: int, height: int, camera: str) -> np.ndarray:
+        """uint8 [len(indices), height, width, 3]: each instance's current frame.
+
+        Rendering leaves the episodes as they are, so a failed frame does not need a Reset.
+        """
+        self.last_used = time.monotonic()
+        info = self._instances.info
+        if not info.renders:
+            raise FailedPrecondition(f"env {self.env_id}: its task {info.task_class} has no renderer (Task.render)")
+        if camera and camera not in info.cameras:
+            raise InvalidArgument(
+                f'camera: env {self.env_id} has no camera {quote(camera)}; expected "" (the default view) '
+                f"or one of {list(info.cameras)}"
+            )
+        unreset = [i for i in indices if not self._seeded[i]]
+        if unreset:
+            raise FailedPrecondition(f"session {self.id}: call Reset before Render (instances {quote(unreset)})")
+        try:
+            frames = self._instances.render(RenderBatch(list(indices), width, height, camera))
+        except InstanceFailure as failure:
+            log.error(
+                "env %s session %s instance %d: render raised %s",
+                self.env_id,
+                self.id,
+                failure.index,
+                failure.error,
+                exc_info=failure.__cause__,
+            )
+            raise SimulatorError(
+                f"env {self.env_id} session {self.id} instance {failure.index}: render raised {failure.error}"
+            ) from failure
+        out = np.empty((len(frames), height, width, 3), np.uint8)
+        for pos, frame in enumerate(frames):
+            frame = np.asarray(frame)
+            if frame.shape != (height, width, 3) or frame.dtype != np.uint8:
+                raise Internal(
+                    f"env {self.env_id} instance {indices[pos]}: task {info.task_class} rendered "
+                    f"{frame.dtype} {list(frame.shape)}, expected uint8 [{height}, {width}, 3]"
+                )
+            out[pos] = frame
+        return out
 
     def _account(self, live: np.ndarray) -> None:
         self._ep_len[live] += 1

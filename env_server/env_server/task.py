@@ -56,6 +56,10 @@ class Task(abc.ABC):
     max_episode_steps: int | None = None
     #: Info keys this task can report each step (numeric scalars or arrays).
     info_keys: tuple[str, ...] = ()
+    #: Named cameras `render` accepts besides "" (the task's default view).
+    cameras: tuple[str, ...] = ()
+    #: Frames per second that play the task in real time (1 / control period); 0 = unknown.
+    render_fps: float = 0.0
 
     observation_space: gymnasium.spaces.Space
     action_space: gymnasium.spaces.Space
@@ -67,6 +71,16 @@ class Task(abc.ABC):
     @abc.abstractmethod
     def step(self, action: Any) -> StepOutcome:
         """Advance one step. The action has already been validated against action_space."""
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        """The current frame as uint8 [height, width, 3] RGB, top row first.
+
+        `camera` is "" (a view that shows the task) or one of `cameras`; the server has
+        checked it and the size. A Task that cannot render leaves this as it is, and
+        Render on it is FAILED_PRECONDITION. Renderers that need OpenGL call
+        `env_server.gl.require()` first, so a server without it says what to install.
+        """
+        raise NotImplementedError
 
     def close(self) -> None:
         """Release simulator resources."""

@@ -29,19 +29,18 @@ PLUGINS = pathlib.Path(__file__).parent / "plugins"
 def server_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PLUGINS), env.get("PYTHONPATH", "")]))
-    env.setdefault("MUJOCO_GL", "disable")
     return env
 
 
 @contextlib.contextmanager
-def running_server(*args: str, timeout: float = 30.0) -> Iterator[str]:
+def running_server(*args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None) -> Iterator[str]:
     """Start a server, yield its address from the LISTENING line, stop it at the end."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "env_server", "--port", "0", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
-        env=server_env(),
+        env={**server_env(), **(extra_env or {})},
     )
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.append(proc.stdout.readline()), daemon=True)

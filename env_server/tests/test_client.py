@@ -127,3 +127,25 @@ def test_dict_observation_round_trip(address: str) -> None:
         assert obs["goal"]["index"].tolist() == expected_goals
         obs, *_ = env.step(np.array([[0.5, -0.25], [1.0, 1.0]], np.float32))
         assert obs["pos"].tolist() == [[0.5, -0.25], [1.0, 1.0]]
+
+
+def test_record_video(address, tmp_path) -> None:
+    """gymnasium's RecordVideo records a RemoteEnv made with render_mode="rgb_array"."""
+    import imageio_ffmpeg
+    from gymnasium.wrappers import RecordVideo
+
+    env = RemoteEnv(address, "dst", render_mode="rgb_array", render_width=64, render_height=48, render_fps=10)
+    assert env.metadata["render_fps"] == 10 and RemoteEnv.metadata["render_fps"] == 30
+    env = RecordVideo(env, str(tmp_path / "videos"), episode_trigger=lambda episode: True, disable_logger=True)
+    env.reset(seed=0)
+    for action in (1, 2, 2):  # right, down, down: the 8.2 treasure in 3 steps
+        _, _, terminated, truncated, _ = env.step(action)
+    assert terminated
+    env.close()
+    (video,) = (tmp_path / "videos").glob("*.mp4")
+    probe = subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(video), "-f", "rawvideo", "-pix_fmt", "rgb24", "-"],
+        capture_output=True,
+        check=True,
+    )
+    assert len(probe.stdout) == 4 * 48 * 64 * 3  # the reset frame and one per step

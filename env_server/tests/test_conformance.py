@@ -69,3 +69,16 @@ def test_conformance(address: str, env_id: str) -> None:
     for a, b in zip(steps, steps_again):
         np.testing.assert_array_equal(a[0], b[0])
         np.testing.assert_array_equal(a[1], b[1])
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_renders(address: str, env_id: str) -> None:
+    """Every env draws a frame of the asked size that shows something (not one flat colour)."""
+    with RemoteVectorEnv(address, env_id, 1, seed=0) as env:
+        env.reset()
+        env.step(_actions(env.spec.action_space, 0)[0][:1])
+        frames = env.render(width=64, height=48)
+        assert env.render_fps > 0
+    assert frames.shape == (1, 48, 64, 3) and frames.dtype == np.uint8
+    colours = np.unique(frames.reshape(-1, 3), axis=0)
+    assert len(colours) >= 3 and frames.std() > 5.0, (env_id, len(colours), frames.std())

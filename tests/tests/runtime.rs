@@ -38,9 +38,15 @@ y_objective = "treasure"
     )
     .unwrap();
     let (sweep_cfg, base) = SweepConfig::load(&sweep_path).unwrap();
-    let s = agent::sweep::sweep(&sweep_cfg, &base, &[server.address().to_string()], false)
-        .await
-        .unwrap();
+    let s = agent::sweep::sweep(
+        &sweep_cfg,
+        &base,
+        &[server.address().to_string()],
+        false,
+        None,
+    )
+    .await
+    .unwrap();
     assert_eq!(s.points.len(), 2);
     let returns: Vec<Vec<f64>> = s.points.iter().map(|p| p.eval_return.clone()).collect();
     assert_eq!(s.hypervolume, hypervolume(&returns, &[-25.0, 0.0]));

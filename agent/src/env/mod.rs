@@ -5,6 +5,7 @@
 //! demos and tests. Shapes: observations `[B, ...]` per leaf, reward `[B, K]`.
 
 pub mod connection;
+pub mod frames;
 pub mod grpc;
 pub mod server_process;
 

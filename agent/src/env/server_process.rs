@@ -79,10 +79,6 @@ impl LocalServer {
             } else {
                 &["--log-level", "WARNING"][..]
             })
-            .env(
-                "MUJOCO_GL",
-                std::env::var("MUJOCO_GL").unwrap_or_else(|_| "disable".into()),
-            )
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

@@ -22,6 +22,7 @@ use crate::metrics::format_vector;
 use crate::pareto::{expected_utility, hypervolume, igd, non_dominated, simplex_weights};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, TrainOptions, TrainSummary, train};
+use crate::video::{VideoOptions, VideoPlan};
 
 /// What the grid varies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -360,12 +361,14 @@ fn setting_label(s: &BTreeMap<String, f64>) -> String {
         .join(" ")
 }
 
-/// Run the whole sweep against `addresses`; `progress` draws a bar over the runs.
+/// Run the whole sweep against `addresses`; `progress` draws a bar over the runs;
+/// `video` records each run's final evaluation (`runs/<i>/<run>/videos/final.mp4`).
 pub async fn sweep(
     sweep: &SweepConfig,
     base: &TrainConfig,
     addresses: &[String],
     progress: bool,
+    video: Option<&VideoOptions>,
 ) -> Result<SweepSummary, TrainError> {
     let started = Instant::now();
     let time = SystemTime::now()
@@ -411,6 +414,10 @@ pub async fn sweep(
                 TrainOptions {
                     resume: None,
                     progress: false,
+                    video: video.map(|options| VideoPlan {
+                        every: None,
+                        options: options.clone(),
+                    }),
                 },
             )
             .await?;

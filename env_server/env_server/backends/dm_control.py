@@ -15,7 +15,28 @@ from typing import Any
 
 import numpy as np
 
+from env_server.render import FreeCamera, MujocoView
 from env_server.task import Objective, StepOutcome, Task
+
+#: The view of a domain without cameras (dm_control's own free-camera default).
+_FREE = FreeCamera(lookat=(0.0, 0.0, 0.5), distance=3.0, azimuth=90.0, elevation=-20.0)
+
+
+def physics_view(physics: Any, default: str | None, current: MujocoView | None = None) -> MujocoView:
+    """Frames of a dm_control Physics (its MuJoCo model and data) from its named cameras;
+    "" means `default`, else the first camera, else a free camera. `current` is reused
+    while it still shows this physics (composer recompiles its physics on reset).
+
+    This is what dm_control's `physics.render(height, width, camera_id)` draws, through
+    render.MujocoView so that every task in a server shares one OpenGL stack.
+    """
+    model, data = physics.model.ptr, physics.data.ptr
+    if current is not None:
+        if current.model is model and current.data is data:
+            return current
+        current.close()
+    first = physics.model.id2name(0, "camera") if physics.model.ncam else None
+    return MujocoView(model, data, default or first or _FREE)
 
 
 class DmcTask(Task):
@@ -24,6 +45,8 @@ class DmcTask(Task):
     description = "any dm_control suite task: dmc:<domain>-<task>, flattened float32 observation"
     # Every Control Suite reward lies in the unit interval (Tassa et al. 2018, section 2).
     objectives: tuple[Objective, ...] = (Objective("reward", "the suite reward", 0.0, 1.0),)
+    #: The camera Render's "" means: None = the domain's first camera (a free camera when it has none).
+    default_camera: str | None = None
 
     def __init__(self, domain: str, task: str, environment_kwargs: dict | None = None, **task_kwargs: Any) -> None:
         import gymnasium
@@ -46,6 +69,9 @@ class DmcTask(Task):
         step_limit = getattr(self.env, "_step_limit", math.inf)
         self.max_episode_steps = int(round(step_limit)) if math.isfinite(step_limit) else None
         self._reward = np.zeros(len(self.objectives), np.float32)
+        self._view = physics_view(self.env.physics, self.default_camera)
+        self.cameras = self._view.cameras
+        self.render_fps = 1.0 / self.env.control_timestep()
 
     def _flatten(self, observation: dict[str, Any]) -> np.ndarray:
         for (key, _), sl in zip(self._obs_specs, self._slices):
@@ -69,5 +95,10 @@ class DmcTask(Task):
         terminated = last and ts.discount == 0.0
         return StepOutcome(self._flatten(ts.observation), self.reward(ts, action), terminated, last and not terminated)
 
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        self._view = physics_view(self.env.physics, self.default_camera, self._view)
+        return self._view.render(width, height, camera)
+
     def close(self) -> None:
+        self._view.close()
         self.env.close()

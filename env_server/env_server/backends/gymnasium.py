@@ -7,8 +7,45 @@ from typing import Any
 
 import numpy as np
 
-from env_server.errors import InvalidArgument, quote
+from env_server import gl, render
+from env_server.errors import FailedPrecondition, InvalidArgument, quote
 from env_server.task import Objective, StepOutcome, Task
+
+
+def with_rgb_array(gym_id: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """`kwargs` plus render_mode="rgb_array" when the env supports it and none was asked for.
+
+    gymnasium fixes an env's render mode at construction; "rgb_array" draws only when
+    render() is called, so asking for it costs nothing per step.
+    """
+    import gymnasium
+    from gymnasium.envs.registration import load_env_creator
+
+    if "render_mode" in kwargs:
+        return kwargs
+    entry = gymnasium.spec(gym_id).entry_point
+    creator = load_env_creator(entry) if isinstance(entry, str) else entry
+    modes = getattr(creator, "metadata", {}).get("render_modes", [])
+    return {**kwargs, "render_mode": "rgb_array"} if "rgb_array" in modes else kwargs
+
+
+def gym_frame(env_id: str, env: Any, width: int, height: int) -> np.ndarray:
+    """A gymnasium env's own rgb_array frame, resampled to width x height.
+
+    gymnasium draws at the env's own size (for MuJoCo envs, the `width`/`height` Make
+    kwargs; pygame envs have a fixed size), so the frame is fitted to the size asked for.
+    """
+    if env.render_mode != "rgb_array":
+        raise FailedPrecondition(
+            f"env {env_id}: made with render_mode={env.render_mode!r}; Render needs 'rgb_array' "
+            "(leave render_mode out of the Make kwargs)"
+        )
+    if hasattr(env.unwrapped, "mujoco_renderer"):
+        gl.require()
+    frame = env.render()
+    if frame is None:
+        raise FailedPrecondition(f"env {env_id}: render() returned no frame")
+    return render.resize(frame, width, height)
 
 
 def check_kwarg_types(gym_id: str, kwargs: dict[str, Any]) -> None:
@@ -57,11 +94,13 @@ class GymTask(Task):
         import gymnasium
 
         check_kwarg_types(gym_id, kwargs)
-        self.env = gymnasium.make(gym_id, **kwargs)
+        self.gym_id = gym_id
+        self.env = gymnasium.make(gym_id, **with_rgb_array(gym_id, kwargs))
         self.observation_space = self.env.observation_space
         self.action_space = self.env.action_space
         spec = self.env.spec
         self.max_episode_steps = spec.max_episode_steps if spec is not None else None
+        self.render_fps = float(self.env.metadata.get("render_fps") or 0.0)
         self._reward = np.zeros(1, np.float32)
 
     def reset(self, seed: int | None = None) -> tuple[Any, dict[str, Any]]:
@@ -71,6 +110,9 @@ class GymTask(Task):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._reward[0] = reward
         return StepOutcome(obs, self._reward, bool(terminated), bool(truncated), info)
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        return gym_frame(f"gym:{self.gym_id}", self.env, width, height)
 
     def close(self) -> None:
         self.env.close()

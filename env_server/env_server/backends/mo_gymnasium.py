@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from env_server.backends.gymnasium import gym_frame, with_rgb_array
 from env_server.task import Objective, StepOutcome, Task
 
 
@@ -22,7 +23,8 @@ class MoGymTask(Task):
     def __init__(self, mo_id: str, **kwargs: Any) -> None:
         import mo_gymnasium
 
-        self.env = mo_gymnasium.make(mo_id, **kwargs)
+        self.mo_id = mo_id
+        self.env = mo_gymnasium.make(mo_id, **with_rgb_array(mo_id, kwargs))
         reward_space = self.env.unwrapped.reward_space
         k = int(np.prod(reward_space.shape))
         names = getattr(self.env.unwrapped, "reward_names", None)
@@ -37,6 +39,7 @@ class MoGymTask(Task):
         self.action_space = self.env.action_space
         spec = self.env.spec
         self.max_episode_steps = spec.max_episode_steps if spec is not None else None
+        self.render_fps = float(self.env.metadata.get("render_fps") or 0.0)
         self._reward = np.zeros(k, np.float32)
 
     def reset(self, seed: int | None = None) -> tuple[Any, dict[str, Any]]:
@@ -46,6 +49,9 @@ class MoGymTask(Task):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._reward[:] = np.asarray(reward, np.float32).reshape(-1)
         return StepOutcome(obs, self._reward, bool(terminated), bool(truncated), info)
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        return gym_frame(f"mo:{self.mo_id}", self.env, width, height)
 
     def close(self) -> None:
         self.env.close()

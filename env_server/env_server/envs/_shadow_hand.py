@@ -37,6 +37,7 @@ import gymnasium
 import mujoco
 import numpy as np
 
+from env_server.render import FreeCamera, MujocoView
 from env_server.task import Objective, StepOutcome, Task
 
 FINGERS = ("ff", "mf", "rf", "lf", "th")
@@ -47,6 +48,8 @@ N_HAND_OBS = 63
 TOUCH_SUCCESS_N = 5.0
 #: Pain acceptability sigmoid(lambda1 * (-m + lambda2)), lambda = [2, 2] (paper eq. 7).
 PAIN_LAMBDA = (2.0, 2.0)
+#: Render's default view: the palm, the fingers and the object above them, from the fingertips' side.
+VIEW = FreeCamera(lookat=(0.98, 0.85, 0.2), distance=0.4, azimuth=180.0, elevation=-30.0)
 
 
 def hand_asset_path() -> str:
@@ -83,6 +86,9 @@ class ShadowHandTask(Task):
     """
 
     _extra_obs_size = 0
+    #: Render's default camera.
+    view = VIEW
+    render_fps = 1.0 / (N_SUBSTEPS * 0.002)  # 25 Hz control
 
     def __init__(self) -> None:
         spec = hand_spec()
@@ -110,6 +116,8 @@ class ShadowHandTask(Task):
         self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, self._obs.shape, np.float32)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (m.nu,), np.float32)
         self._rng = np.random.default_rng()
+        self._view = MujocoView(self.model, self.data, self.view)
+        self.cameras = self._view.cameras
 
     # -- subclass hooks -------------------------------------------------------------------
     @abc.abstractmethod
@@ -186,6 +194,12 @@ class ShadowHandTask(Task):
         mujoco.mj_forward(self.model, self.data)
         reward, terminated = self._reward_and_done()
         return StepOutcome(self._observe(), reward, terminated, False, self._info())
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        return self._view.render(width, height, camera)
+
+    def close(self) -> None:
+        self._view.close()
 
 
 class ForceObjectTask(ShadowHandTask):

@@ -41,6 +41,15 @@ TREASURES: dict[tuple[int, int], float] = {
 #: Action -> (d_row, d_col): 0 up, 1 right, 2 down, 3 left.
 MOVES: tuple[tuple[int, int], ...] = ((-1, 0), (0, 1), (1, 0), (0, -1))
 _FLOOR_BELOW = {col: row for (row, col) in TREASURES}
+#: Frame colours (RGB).
+SEA, FLOOR, GRID, GOLD, SUBMARINE, MARGIN = (
+    (24, 92, 160),
+    (92, 64, 40),
+    (16, 60, 110),
+    (240, 196, 40),
+    (230, 60, 40),
+    (10, 20, 30),
+)
 
 
 def is_sea_floor(row: int, col: int) -> bool:
@@ -57,6 +66,7 @@ class DeepSeaTreasure(Task):
         Objective("treasure", "the treasure's value on pickup, else 0", 0.0, max(TREASURES.values())),
     )
     max_episode_steps = 200
+    render_fps = 4.0  # a grid world has no real time; slow enough to follow each move
 
     def __init__(self) -> None:
         self.observation_space = gymnasium.spaces.Box(
@@ -75,6 +85,32 @@ class DeepSeaTreasure(Task):
         # The dynamics are deterministic; the seed has nothing to randomise.
         self._pos = (0, 0)
         return self._observe(), {}
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        """The grid drawn with numpy (no OpenGL): sea, sea floor, treasures (gold, larger
+        for larger values) and the submarine (red), centred with square cells."""
+        frame = np.empty((height, width, 3), np.uint8)
+        frame[:] = MARGIN
+        cell = max(1, min(width // COLS, height // ROWS))
+        top, left = (height - cell * ROWS) // 2, (width - cell * COLS) // 2
+        top, left = max(top, 0), max(left, 0)
+        top_value = max(TREASURES.values())
+        for row in range(ROWS):
+            for col in range(COLS):
+                y, x = top + row * cell, left + col * cell
+                block = frame[y : y + cell, x : x + cell]
+                block[:] = FLOOR if is_sea_floor(row, col) else SEA
+                if cell >= 6:  # grid lines only where they leave room for the cell
+                    block[-1, :] = block[:, -1] = GRID
+                value = TREASURES.get((row, col))
+                if value is not None:
+                    inset = int(cell * (0.4 - 0.3 * value / top_value))
+                    block[inset : cell - inset, inset : cell - inset] = GOLD
+                if (row, col) == self._pos:
+                    r = np.arange(cell) - (cell - 1) / 2
+                    disk = r[:, None] ** 2 + r[None, :] ** 2 <= (0.38 * cell) ** 2
+                    block[disk] = SUBMARINE
+        return frame
 
     def step(self, action: Any) -> StepOutcome:
         d_row, d_col = MOVES[int(action)]

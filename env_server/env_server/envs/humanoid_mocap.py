@@ -53,6 +53,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from env_server.backends.dm_control import physics_view
 from env_server.task import Objective, StepOutcome, Task
 
 #: dm_control "comic" channel -> (our objective, the weight dm_control multiplies it by).
@@ -65,6 +66,8 @@ CHANNELS = (
 )
 TERMINATION_THRESHOLD = 0.3
 REF_STEPS = (1, 2, 3, 4, 5)
+#: Render's default camera: tracks the walker from the side and above.
+DEFAULT_CAMERA = "walker/side"
 
 
 def scalarized(reward: np.ndarray, lam: float) -> float:
@@ -156,6 +159,9 @@ class HumanoidMocap(Task):
             )
         self._vector = np.zeros(len(CHANNELS), np.float32)
         self._reward = np.zeros(len(self.objectives), np.float32)
+        self._view = physics_view(self.env.physics, DEFAULT_CAMERA)
+        self.cameras = self._view.cameras
+        self.render_fps = 1.0 / self.env.control_timestep()
 
     # -- helpers --------------------------------------------------------------------------
     def ctrl_from_action(self, action: np.ndarray) -> np.ndarray:
@@ -207,5 +213,10 @@ class HumanoidMocap(Task):
             self._flatten(ts.observation), self._reward, terminated, last and not terminated, self._info()
         )
 
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        self._view = physics_view(self.env.physics, DEFAULT_CAMERA, self._view)
+        return self._view.render(width, height, camera)
+
     def close(self) -> None:
+        self._view.close()
         self.env.close()

@@ -33,6 +33,8 @@ class HumanoidRun(DmcTask):
         Objective("action_norm", "-||a||_2 of the action", -math.sqrt(21.0), 0.0),
     )
     max_episode_steps = 1000
+    # Tracks the body from the side, so a run shows as motion across the frame.
+    default_camera = "side"
 
     def __init__(self, **task_kwargs: Any) -> None:
         # The instance's max_episode_steps comes from the suite's time limit (25 s at 0.025 s

@@ -68,6 +68,7 @@ import gymnasium
 import mujoco
 import numpy as np
 
+from env_server.render import FreeCamera, MujocoView
 from env_server.task import Objective, StepOutcome, Task
 
 CONTROL_HZ = 20
@@ -85,6 +86,8 @@ START_CENTRE = OPENING + np.array([0.0, 0.0, 0.06])
 START_HALF = 0.04
 FORCE_LIMIT_XY = 15.0
 FORCE_LIMIT_Z = 5.0
+#: Render's default view: the arm, the peg and the hole block, from the front and above.
+VIEW = FreeCamera(lookat=(0.3, 0.12, 0.35), distance=1.3, azimuth=135.0, elevation=-20.0)
 L_APPROACH, EPS_APPROACH = 0.95, 0.01
 L_INSERTED, EPS_INSERTED = 0.5, 0.04
 FRAME = 41
@@ -132,6 +135,7 @@ class SawyerPeg(Task):
     )
     max_episode_steps = 600
     info_keys = ("peg_tip", "wrist_force")
+    render_fps = float(CONTROL_HZ)
 
     def __init__(self) -> None:
         self.model = self._build()
@@ -147,6 +151,8 @@ class SawyerPeg(Task):
         self._frames = np.zeros((HISTORY, FRAME), np.float32)
         self._reward = np.zeros(2, np.float32)
         self._rng = np.random.default_rng()
+        self._view = MujocoView(m, self.data, VIEW)
+        self.cameras = self._view.cameras
         self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (HISTORY * FRAME,), np.float32)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), np.float32)
         # The peg/sensor frame is world-aligned at home; hold that orientation.
@@ -332,3 +338,9 @@ class SawyerPeg(Task):
         self._frames[1:] = self._frames[:-1].copy()
         self._frames[0] = self._frame()
         return StepOutcome(self._observe(), self._reward, terminated, False, self._info())
+
+    def render(self, width: int, height: int, camera: str) -> np.ndarray:
+        return self._view.render(width, height, camera)
+
+    def close(self) -> None:
+        self._view.close()

@@ -45,6 +45,7 @@ import mujoco
 import numpy as np
 
 from env_server.envs._shadow_hand import ShadowHandTask
+from env_server.render import FreeCamera
 from env_server.task import Objective
 
 PEG_HALF = (0.012, 0.012, 0.04)
@@ -107,6 +108,8 @@ class ShadowOrient(ShadowHandTask):
     max_episode_steps = 200
     info_keys = ("peg_force", "peg_height", "peg_angle")
     _extra_obs_size = 12
+    # The hand is mounted lower here (palm about 3 cm above the floor).
+    view = FreeCamera(lookat=(0.98, 0.87, 0.07), distance=0.4, azimuth=180.0, elevation=-30.0)
 
     def _edit(self, spec: mujoco.MjSpec) -> None:
         spec.body("robot0:hand mount").pos[2] = MOUNT_Z

@@ -17,8 +17,8 @@ use futures::{FutureExt, Stream, StreamExt};
 use mo_env_proto::v1::env_service_server::EnvService;
 use mo_env_proto::v1::{
     CloseRequest, CloseResponse, GetVersionRequest, GetVersionResponse, ListEnvsRequest,
-    ListEnvsResponse, MakeRequest, MakeResponse, ResetRequest, ResetResponse, StepRequest,
-    StepResponse,
+    ListEnvsResponse, MakeRequest, MakeResponse, RenderRequest, RenderResponse, ResetRequest,
+    ResetResponse, StepRequest, StepResponse,
 };
 use prost::Message;
 use pyo3::prelude::*;
@@ -334,5 +334,12 @@ impl EnvService for PyEnvService {
         request: Request<CloseRequest>,
     ) -> Result<Response<CloseResponse>, Status> {
         self.unary("Close", request).await
+    }
+
+    async fn render(
+        &self,
+        request: Request<RenderRequest>,
+    ) -> Result<Response<RenderResponse>, Status> {
+        self.unary("Render", request).await
     }
 }

@@ -16,6 +16,7 @@ use tokio_stream::wrappers::ReceiverStream;
 
 mod channel;
 mod convert;
+mod render;
 
 use channel::{Bearer, Stub};
 

@@ -266,3 +266,27 @@ class CloseRequest(_message.Message):
 class CloseResponse(_message.Message):
     __slots__ = ()
     def __init__(self) -> None: ...
+
+class RenderRequest(_message.Message):
+    __slots__ = ("session_id", "env_indices", "width", "height", "camera")
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    ENV_INDICES_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    CAMERA_FIELD_NUMBER: _ClassVar[int]
+    session_id: str
+    env_indices: _containers.RepeatedScalarFieldContainer[int]
+    width: int
+    height: int
+    camera: str
+    def __init__(self, session_id: _Optional[str] = ..., env_indices: _Optional[_Iterable[int]] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., camera: _Optional[str] = ...) -> None: ...
+
+class RenderResponse(_message.Message):
+    __slots__ = ("frames", "cameras", "fps")
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    CAMERAS_FIELD_NUMBER: _ClassVar[int]
+    FPS_FIELD_NUMBER: _ClassVar[int]
+    frames: Tensor
+    cameras: _containers.RepeatedScalarFieldContainer[str]
+    fps: float
+    def __init__(self, frames: _Optional[_Union[Tensor, _Mapping]] = ..., cameras: _Optional[_Iterable[str]] = ..., fps: _Optional[float] = ...) -> None: ...

@@ -74,6 +74,11 @@ class EnvServiceStub:
                 request_serializer=mo__env_dot_v1_dot_env__pb2.CloseRequest.SerializeToString,
                 response_deserializer=mo__env_dot_v1_dot_env__pb2.CloseResponse.FromString,
                 _registered_method=True)
+        self.Render = channel.unary_unary(
+                '/mo_env.v1.EnvService/Render',
+                request_serializer=mo__env_dot_v1_dot_env__pb2.RenderRequest.SerializeToString,
+                response_deserializer=mo__env_dot_v1_dot_env__pb2.RenderResponse.FromString,
+                _registered_method=True)
 
 
 class EnvServiceServicer:
@@ -138,6 +143,13 @@ class EnvServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Render(self, request, context):
+        """RGB frames of some instances of a session (capability "render").
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_EnvServiceServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -180,6 +192,11 @@ def add_EnvServiceServicer_to_server(servicer, server):
                     servicer.Close,
                     request_deserializer=mo__env_dot_v1_dot_env__pb2.CloseRequest.FromString,
                     response_serializer=mo__env_dot_v1_dot_env__pb2.CloseResponse.SerializeToString,
+            ),
+            'Render': grpc.unary_unary_rpc_method_handler(
+                    servicer.Render,
+                    request_deserializer=mo__env_dot_v1_dot_env__pb2.RenderRequest.FromString,
+                    response_serializer=mo__env_dot_v1_dot_env__pb2.RenderResponse.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -398,6 +415,33 @@ class EnvService:
             '/mo_env.v1.EnvService/Close',
             mo__env_dot_v1_dot_env__pb2.CloseRequest.SerializeToString,
             mo__env_dot_v1_dot_env__pb2.CloseResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Render(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/mo_env.v1.EnvService/Render',
+            mo__env_dot_v1_dot_env__pb2.RenderRequest.SerializeToString,
+            mo__env_dot_v1_dot_env__pb2.RenderResponse.FromString,
             options,
             channel_credentials,
             insecure,
