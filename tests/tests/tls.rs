@@ -123,7 +123,7 @@ async fn the_agent_trains_and_evaluates_through_two_tls_servers_with_a_token() {
     let saved = std::fs::read_to_string(summary.run_dir.join("config.toml")).unwrap();
     assert!(saved.contains("[env.connection]") && !saved.contains("e2e-token"));
 
-    let report = evaluate_checkpoint(&summary.run_dir, &servers[1..], &connection, 2)
+    let report = evaluate_checkpoint(&summary.run_dir, &servers[1..], &connection, 2, None)
         .await
         .expect("eval through TLS and a token");
     assert_eq!(report.episodes.len(), 2);

@@ -5,6 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
+use agent::env::connection::ConnectionConfig;
 use agent::env::{Env, MakeOptions};
 use agent::eval::{evaluate_checkpoint, evaluate_recorded};
 use agent::nets::{ActorPolicy, LearnerDims};
@@ -62,9 +63,15 @@ async fn eval_video_of_a_dst_run_has_a_frame_per_step_of_the_tiled_instances() {
     assert_eq!(final_video.path, s.run_dir.join("videos").join("final.mp4"));
 
     let path = runs.path().join("eval.mp4");
-    let report = evaluate_checkpoint(&s.run_dir, &[address], 3, Some((&path, &options)))
-        .await
-        .unwrap();
+    let report = evaluate_checkpoint(
+        &s.run_dir,
+        &[address],
+        &ConnectionConfig::default(),
+        3,
+        Some((path.as_path(), &options)),
+    )
+    .await
+    .unwrap();
     let video = report.video.expect("a video was asked for");
     // Three instances run at once, tiled 2 x 2; one frame after the reset and one per step
     // until the third episode ends.
