@@ -29,15 +29,21 @@ async fn the_same_config_and_seed_give_the_same_learning_curve() {
             .lines()
             .map(|l| l.rsplit_once(',').unwrap().0.to_string())
             .collect();
-        // learner.jsonl without its wall-clock fields.
+        // learner.jsonl without its wall-clock fields (times and rates).
         let learner: Vec<String> = std::fs::read_to_string(s.run_dir.join("learner.jsonl"))
             .unwrap()
             .lines()
             .map(|l| {
                 let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
                 let o = v.as_object_mut().unwrap();
-                o.remove("wall_seconds");
-                o.remove("step_ms");
+                for clock in [
+                    "wall_seconds",
+                    "step_ms",
+                    "env_steps_per_second",
+                    "learner_steps_per_second",
+                ] {
+                    o.remove(clock);
+                }
                 v.to_string()
             })
             .collect();
