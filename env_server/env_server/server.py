@@ -25,20 +25,60 @@ import grpc
 from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.datafiles import DataDirs
+from env_server.errors import EnvServerError
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
-from env_server.service import FRONTS, MESSAGE_TYPES, SERVICE_NAME, UNARY_METHODS, EnvService, status_of
+from env_server.service import (
+    DEFAULT_MAX_ENVS_PER_SESSION,
+    DEFAULT_MAX_LIVE_ENVS,
+    FRONTS,
+    MESSAGE_TYPES,
+    SERVICE_NAME,
+    UNARY_METHODS,
+    EnvService,
+    decode_request,
+    status_of,
+)
 
 log = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------------- grpc.aio front
+class _Undecodable:
+    """What the request deserializer hands a handler for bytes that do not parse.
+
+    grpc.aio answers a deserializer's own exception with UNKNOWN before any handler
+    runs; carried to the handler, the error becomes the client's INVALID_ARGUMENT.
+    """
+
+    def __init__(self, error: EnvServerError) -> None:
+        self.error = error
+
+
+def _deserializer(method: str) -> Callable[[bytes], Any]:
+    def deserialize(data: bytes) -> Any:
+        try:
+            return decode_request(method, data)
+        except EnvServerError as exc:
+            return _Undecodable(exc)
+
+    return deserialize
+
+
+def _parsed(request: Any) -> Any:
+    """The request message; raises the decode error of an _Undecodable one."""
+    if isinstance(request, _Undecodable):
+        raise request.error
+    return request
+
+
 def _unary(method: Callable[[Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
     """A grpc.aio handler for a unary service method: exceptions become its status."""
 
     async def handler(request: Any, context: grpc.aio.ServicerContext) -> Any:
         try:
-            return await method(request)
+            return await method(_parsed(request))
         except Exception as exc:
             code, message = status_of(exc)
             await context.abort(grpc.StatusCode[code], message)
@@ -53,8 +93,9 @@ class _GrpcAioHandlers:
         self.service = service
 
     async def Step(self, request: pb.StepRequest, context: grpc.aio.ServicerContext) -> bytes:
-        action = request.action
         try:
+            request = _parsed(request)
+            action = request.action
             return self.service.step(request.session_id, action.dtype, action.shape, action.data)
         except Exception as exc:
             code, message = status_of(exc)
@@ -67,8 +108,9 @@ class _GrpcAioHandlers:
         aborted = False
         try:
             async for request in request_iterator:
-                action = request.action
                 try:
+                    request = _parsed(request)
+                    action = request.action
                     response = steps.step(request.session_id, action.dtype, action.shape, action.data)
                 except Exception as exc:
                     aborted = True
@@ -95,14 +137,14 @@ def _method_handlers(service: EnvService) -> dict[str, grpc.RpcMethodHandler]:
     streaming = _GrpcAioHandlers(service)
     handlers = {}
     for method in pb.DESCRIPTOR.services_by_name["EnvService"].methods:
-        request, response = MESSAGE_TYPES[method.name]
+        _, response = MESSAGE_TYPES[method.name]
         if method.name in UNARY_METHODS:
             behaviour = _unary(getattr(service, method.name))
         else:
             behaviour = getattr(streaming, method.name)
         handlers[method.name] = _HANDLER_KINDS[method.client_streaming, method.server_streaming](
             behaviour,
-            request_deserializer=request.FromString,
+            request_deserializer=_deserializer(method.name),
             response_serializer=None if method.name in _ENCODED_RESPONSES else response.SerializeToString,
         )
     return handlers
@@ -197,6 +239,9 @@ async def serve(
     max_message_bytes: int = 64 * 1024 * 1024,
     lease_seconds: float = 120.0,
     max_workers: int = DEFAULT_MAX_WORKERS,
+    max_envs_per_session: int = DEFAULT_MAX_ENVS_PER_SESSION,
+    max_live_envs: int = DEFAULT_MAX_LIVE_ENVS,
+    data_dirs: tuple[str, ...] = (),
     front: str = "auto",
     busy_poll_us: int = 0,
     stop: asyncio.Event | None = None,
@@ -214,12 +259,16 @@ async def serve(
         lease_seconds=lease_seconds,
         max_workers=max_workers,
         loop=asyncio.get_running_loop(),
+        max_envs_per_session=max_envs_per_session,
+        max_live_envs=max_live_envs,
+        data_dirs=DataDirs(data_dirs),
     )
     running = _FRONT_CLASSES[front](service, host, port, max_message_bytes, busy_poll_us)
     await running.start()
     print(f"LISTENING {_bind_address(host, running.port)}", flush=True)
     log.info(
-        "serving %s on %s through the %s front (max sessions %d, max message %d bytes, lease %g s, max workers %d)",
+        "serving %s on %s through the %s front (max sessions %d, max message %d bytes, lease %g s, max workers %d, "
+        "max instances %d per session and %d live, data directories %s)",
         SERVICE_NAME,
         _bind_address(host, running.port),
         front,
@@ -227,6 +276,9 @@ async def serve(
         max_message_bytes,
         lease_seconds,
         max_workers,
+        max_envs_per_session,
+        max_live_envs,
+        list(service.data_dirs.roots),
     )
     reaper = asyncio.create_task(service.reap())
     stop = stop or asyncio.Event()
