@@ -12,6 +12,7 @@ server passed the margin in its second cycle.
 from __future__ import annotations
 
 import sys
+import time
 
 import grpc
 import numpy as np
@@ -20,6 +21,7 @@ from conftest import FRONTS, make, server_process, step
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
+from env_server.service import RELEASE_DELAY_S
 
 CYCLES = 6
 B = 20
@@ -40,6 +42,7 @@ def cycle(stub: env_pb2_grpc.EnvServiceStub) -> None:
     for _ in range(5):
         step(stub, session_id, np.zeros((B, 21), np.float32))
     stub.Close(pb.CloseRequest(session_id=session_id))
+    time.sleep(RELEASE_DELAY_S + 0.5)  # the server releases memory shortly after a Close
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and needs glibc's malloc_trim")
