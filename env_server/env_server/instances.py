@@ -269,7 +269,8 @@ class WorkerInstances(Instances):
 
         `build` must pickle (a functools.partial over a module-level callable does).
         Raises what a constructor raised (or InstanceFailure); no worker outlives a failed
-        start. `cancel` stops the local share's loop, and a cancelled start kills the workers.
+        start. `cancel` stops the local share's loop and fails the start, whose cleanup ends
+        the workers (a worker still building is killed after CLOSE_TIMEOUT_S).
         """
         if not 1 <= num_workers < num_envs:
             raise ValueError(f"num_workers must be in 1..{num_envs - 1}, got {num_workers}")
