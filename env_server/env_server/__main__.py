@@ -9,13 +9,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry, RegistryError
 from env_server.security import SecurityConfigError, ServerTls, Tokens, check_exposure
-from env_server.service import FRONTS
+from env_server.service import DEFAULT_MAX_ENVS_PER_SESSION, DEFAULT_MAX_LIVE_ENVS, FRONTS
 from env_server.task import Objective
 
 
@@ -33,6 +34,28 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=DEFAULT_MAX_WORKERS,
         help="worker processes one session may ask for (MakeRequest.num_workers; default: one per CPU)",
+    )
+    p.add_argument(
+        "--max-envs-per-session",
+        type=int,
+        default=DEFAULT_MAX_ENVS_PER_SESSION,
+        help="instances one session may hold (MakeRequest.num_envs); more is RESOURCE_EXHAUSTED "
+        f"(default {DEFAULT_MAX_ENVS_PER_SESSION})",
+    )
+    p.add_argument(
+        "--max-live-envs",
+        type=int,
+        default=DEFAULT_MAX_LIVE_ENVS,
+        help="instances all open sessions may hold together; a Make past it is RESOURCE_EXHAUSTED "
+        f"(default {DEFAULT_MAX_LIVE_ENVS})",
+    )
+    p.add_argument(
+        "--data-dir",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="a directory whose files clients may name in file kwargs (xml_file, clip_path, ...); "
+        "repeatable. The shipped assets are always allowed; any other path is PERMISSION_DENIED",
     )
     p.add_argument(
         "--front",
@@ -116,13 +139,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         print_list(registry)
         return 0
-    if args.max_sessions < 1 or args.max_message_mb <= 0 or args.session_lease <= 0 or args.max_workers < 0:
+    if (
+        args.max_sessions < 1
+        or args.max_message_mb <= 0
+        or args.session_lease <= 0
+        or args.max_workers < 0
+        or args.max_envs_per_session < 1
+        or args.max_live_envs < 1
+    ):
         print(
             "env-server: expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0, "
-            f"--max-workers >= 0; got {args.max_sessions}, {args.max_message_mb}, {args.session_lease}, "
-            f"{args.max_workers}",
+            "--max-workers >= 0, --max-envs-per-session >= 1, --max-live-envs >= 1; got "
+            f"{args.max_sessions}, {args.max_message_mb}, {args.session_lease}, {args.max_workers}, "
+            f"{args.max_envs_per_session}, {args.max_live_envs}",
             file=sys.stderr,
         )
+        return 2
+    missing = [d for d in args.data_dir if not os.path.isdir(d)]
+    if missing:
+        print(f"env-server: --data-dir: expected existing directories, got {missing}", file=sys.stderr)
         return 2
 
     try:
@@ -159,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
             max_message_bytes=int(args.max_message_mb * 1024 * 1024),
             lease_seconds=args.session_lease,
             max_workers=args.max_workers,
+            max_envs_per_session=args.max_envs_per_session,
+            max_live_envs=args.max_live_envs,
+            data_dirs=tuple(args.data_dir),
             front=front,
             busy_poll_us=args.busy_poll_us,
             tls=tls,

@@ -38,8 +38,12 @@ class FailedPreconditionError(RemoteError):
     """FAILED_PRECONDITION: e.g. Step before Reset."""
 
 
+class PermissionDeniedError(RemoteError, PermissionError):
+    """PERMISSION_DENIED: a file kwarg names a file outside the server's data directories."""
+
+
 class ResourceExhaustedError(RemoteError):
-    """RESOURCE_EXHAUSTED: session limit or message size."""
+    """RESOURCE_EXHAUSTED: session limit, instance limits (per session, live) or message size."""
 
 
 class UnauthenticatedError(RemoteError, PermissionError):
@@ -50,6 +54,7 @@ _ERRORS = {
     grpc.StatusCode.INVALID_ARGUMENT: InvalidArgumentError,
     grpc.StatusCode.NOT_FOUND: NotFoundError,
     grpc.StatusCode.FAILED_PRECONDITION: FailedPreconditionError,
+    grpc.StatusCode.PERMISSION_DENIED: PermissionDeniedError,
     grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhaustedError,
     grpc.StatusCode.UNAUTHENTICATED: UnauthenticatedError,
 }

@@ -52,10 +52,23 @@ class FailedPrecondition(EnvServerError):
     code = "FAILED_PRECONDITION"
 
 
+class PermissionDenied(EnvServerError):
+    """The request names something this server does not let clients reach (a file outside
+    the operator's data directories). The message never says whether it exists."""
+
+    code = "PERMISSION_DENIED"
+
+
 class ResourceExhausted(EnvServerError):
-    """A server limit (open sessions) is reached."""
+    """A server limit (open sessions, instances per session, live instances) is reached."""
 
     code = "RESOURCE_EXHAUSTED"
+
+
+class Cancelled(EnvServerError):
+    """The client went away (deadline or cancel) while its call was still being answered."""
+
+    code = "CANCELLED"
 
 
 class Internal(EnvServerError):

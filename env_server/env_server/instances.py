@@ -23,13 +23,14 @@ import logging
 import multiprocessing
 import multiprocessing.connection
 import os
+import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium
 
 from env_server import spaces
-from env_server.errors import EnvServerError, Internal, InvalidArgument, SimulatorError, quote
+from env_server.errors import Cancelled, EnvServerError, Internal, InvalidArgument, SimulatorError, quote
 from env_server.registry import EnvEntry, construct
 from env_server.task import Objective, StepOutcome, Task
 
@@ -177,11 +178,19 @@ def _render_tasks(tasks: Mapping[int, Task], batch: RenderBatch) -> list[Any]:
     return frames
 
 
-def _build_tasks(build: Callable[[], Task], indices: Iterable[int]) -> dict[int, Task]:
-    """One Task per index; a constructor's exception becomes an InstanceFailure ("construct")."""
+def _build_tasks(
+    build: Callable[[], Task], indices: Iterable[int], cancel: threading.Event | None = None
+) -> dict[int, Task]:
+    """One Task per index; a constructor's exception becomes an InstanceFailure ("construct").
+
+    `cancel` set (the Make's client went away) stops the loop before the next
+    construction and closes what was built: B slow constructors must not keep running
+    for a client that is gone.
+    """
     tasks: dict[int, Task] = {}
     try:
         for i in indices:
+            _check_cancel(cancel, len(tasks))
             try:
                 tasks[i] = build()
             except EnvServerError:
@@ -192,6 +201,11 @@ def _build_tasks(build: Callable[[], Task], indices: Iterable[int]) -> dict[int,
         _close_tasks(tasks)
         raise
     return tasks
+
+
+def _check_cancel(cancel: threading.Event | None, built: int) -> None:
+    if cancel is not None and cancel.is_set():
+        raise Cancelled(f"Make: the client went away; stopped building after {built} instances")
 
 
 def _close_tasks(tasks: Mapping[int, Task]) -> None:
@@ -288,11 +302,15 @@ class WorkerInstances(Instances):
     server's CPU is awake anyway, and each process hop costs two wake-ups.
     """
 
-    def __init__(self, build: Callable[[], Task], num_envs: int, num_workers: int) -> None:
+    def __init__(
+        self, build: Callable[[], Task], num_envs: int, num_workers: int, cancel: threading.Event | None = None
+    ) -> None:
         """Start `num_workers` processes that each call `build()` for their share of `num_envs`.
 
         `build` must pickle (a functools.partial over a module-level callable does).
-        Raises what a constructor raised (or InstanceFailure); no worker outlives a failed start.
+        Raises what a constructor raised (or InstanceFailure); no worker outlives a failed
+        start. `cancel` stops the local share's loop and fails the start, whose cleanup ends
+        the workers (a worker still building is killed after CLOSE_TIMEOUT_S).
         """
         if not 1 <= num_workers < num_envs:
             raise ValueError(f"num_workers must be in 1..{num_envs - 1}, got {num_workers}")
@@ -317,8 +335,9 @@ class WorkerInstances(Instances):
                 child.close()
                 self._workers.append(_Worker(process, parent, first, count))
                 first += count
-            self._local = _build_tasks(build, range(counts[0]))  # while the workers build theirs
+            self._local = _build_tasks(build, range(counts[0]), cancel)  # while the workers build theirs
             for worker in self._workers:
+                _check_cancel(cancel, len(self._local))
                 self._receive(worker, "construct")
         except BaseException:
             self.close()
@@ -431,7 +450,12 @@ class WorkerInstances(Instances):
 
 # ---------------------------------------------------------------------- construction
 def build_instances(
-    entry: EnvEntry, kwargs: Mapping[str, Any], num_envs: int, num_workers: int, info_keys: Sequence[str]
+    entry: EnvEntry,
+    kwargs: Mapping[str, Any],
+    num_envs: int,
+    num_workers: int,
+    info_keys: Sequence[str],
+    cancel: threading.Event | None = None,
 ) -> Instances:
     """Construct num_envs instances of `entry` (in num_workers worker processes too) and check them.
 
@@ -449,9 +473,9 @@ def build_instances(
     build = functools.partial(construct, entry, kwargs)
     try:
         if num_workers:
-            instances: Instances = WorkerInstances(build, num_envs, num_workers)
+            instances: Instances = WorkerInstances(build, num_envs, num_workers, cancel)
         else:
-            instances = LocalInstances(list(_build_tasks(build, range(num_envs)).values()))
+            instances = LocalInstances(list(_build_tasks(build, range(num_envs), cancel).values()))
     except InstanceFailure as failure:
         log.error("env %s: constructor raised", entry.env_id, exc_info=failure.__cause__)
         raise SimulatorError(f"env {entry.env_id}: constructor raised {failure.error}") from failure

@@ -19,13 +19,17 @@ import difflib
 import functools
 import importlib.metadata
 import inspect
+import logging
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
-from env_server.errors import QUOTE_LIMIT, InvalidArgument, NotFound, quote
+from env_server.datafiles import file_kwargs
+from env_server.errors import QUOTE_LIMIT, EnvServerError, InvalidArgument, NotFound, quote
 from env_server.task import Objective, Task
 
 ENTRY_POINT_GROUP = "env_server.envs"
+
+log = logging.getLogger(__name__)
 
 
 class RegistryError(Exception):
@@ -166,7 +170,8 @@ class Registry:
 
 
 def construct(entry: EnvEntry, kwargs: Mapping[str, Any]) -> Task:
-    """entry.factory(**kwargs), turning a kwargs mismatch into InvalidArgument naming the kwarg."""
+    """entry.factory(**kwargs), turning a kwargs mismatch, or a loader that fails on a file
+    kwarg (already resolved by datafiles.DataDirs), into InvalidArgument naming the kwarg."""
     if inspect.isclass(entry.factory):
         params = inspect.signature(entry.factory).parameters
         if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
@@ -176,11 +181,26 @@ def construct(entry: EnvEntry, kwargs: Mapping[str, Any]) -> Task:
                     raise InvalidArgument(
                         f"kwargs_json: env '{entry.env_id}' has no keyword argument {quote(name)}; accepted: {accepted}"
                     )
+    files = file_kwargs(kwargs)
     try:
         return entry.factory(**kwargs)
-    except TypeError as exc:
-        if not kwargs:
+    except EnvServerError:
+        raise
+    except Exception as exc:
+        if not files:
+            if isinstance(exc, TypeError) and kwargs:
+                raise _rejected(entry, kwargs, exc) from exc
             raise
+        # A loader's error quotes the file (XML element names, HDF5 internals) or its
+        # server-side path: the client hears which kwarg, the log gets the rest.
+        log.warning("env %s: constructor raised with file kwargs %s", entry.env_id, files, exc_info=exc)
         raise InvalidArgument(
-            f"kwargs_json: env '{entry.env_id}' rejected keyword arguments {quote(sorted(kwargs))}: {quote(str(exc), 200)}"
+            f"kwargs_json: env '{entry.env_id}' could not be built from the file named by {', '.join(files)} "
+            f"({type(exc).__name__}; expected a file this env can load, the server's log has the details)"
         ) from exc
+
+
+def _rejected(entry: EnvEntry, kwargs: Mapping[str, Any], exc: TypeError) -> InvalidArgument:
+    return InvalidArgument(
+        f"kwargs_json: env '{entry.env_id}' rejected keyword arguments {quote(sorted(kwargs))}: {quote(str(exc), 200)}"
+    )

@@ -31,15 +31,55 @@ from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 
 from env_server import gl
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.datafiles import DataDirs
+from env_server.errors import EnvServerError
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
 from env_server.security import ServerTls, Tokens, check_exposure
-from env_server.service import FRONTS, MESSAGE_TYPES, SERVICE_NAME, UNARY_METHODS, EnvService, status_of
+from env_server.service import (
+    DEFAULT_MAX_ENVS_PER_SESSION,
+    DEFAULT_MAX_LIVE_ENVS,
+    FRONTS,
+    MESSAGE_TYPES,
+    SERVICE_NAME,
+    UNARY_METHODS,
+    EnvService,
+    decode_request,
+    status_of,
+)
 
 log = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------------- grpc.aio front
+class _Undecodable:
+    """What the request deserializer hands a handler for bytes that do not parse.
+
+    grpc.aio answers a deserializer's own exception with UNKNOWN before any handler
+    runs; carried to the handler, the error becomes the client's INVALID_ARGUMENT.
+    """
+
+    def __init__(self, error: EnvServerError) -> None:
+        self.error = error
+
+
+def _deserializer(method: str) -> Callable[[bytes], Any]:
+    def deserialize(data: bytes) -> Any:
+        try:
+            return decode_request(method, data)
+        except EnvServerError as exc:
+            return _Undecodable(exc)
+
+    return deserialize
+
+
+def _parsed(request: Any) -> Any:
+    """The request message; raises the decode error of an _Undecodable one."""
+    if isinstance(request, _Undecodable):
+        raise request.error
+    return request
+
+
 def _owner(tokens: Tokens | None, context: grpc.aio.ServicerContext) -> str | None:
     """The caller's client name (None without tokens); raises Unauthenticated."""
     if tokens is None:
@@ -53,7 +93,7 @@ def _unary(method: Callable[[Any, str | None], Awaitable[Any]], tokens: Tokens |
 
     async def handler(request: Any, context: grpc.aio.ServicerContext) -> Any:
         try:
-            return await method(request, _owner(tokens, context))
+            return await method(_parsed(request), _owner(tokens, context))
         except Exception as exc:
             code, message = status_of(exc)
             await context.abort(grpc.StatusCode[code], message)
@@ -69,8 +109,9 @@ class _GrpcAioHandlers:
         self.tokens = tokens
 
     async def Step(self, request: pb.StepRequest, context: grpc.aio.ServicerContext) -> bytes:
-        action = request.action
         try:
+            request = _parsed(request)
+            action = request.action
             owner = _owner(self.tokens, context)
             return self.service.step(request.session_id, action.dtype, action.shape, action.data, owner)
         except Exception as exc:
@@ -89,8 +130,9 @@ class _GrpcAioHandlers:
         aborted = False
         try:
             async for request in request_iterator:
-                action = request.action
                 try:
+                    request = _parsed(request)
+                    action = request.action
                     response = steps.step(request.session_id, action.dtype, action.shape, action.data, owner)
                 except Exception as exc:
                     aborted = True
@@ -117,14 +159,14 @@ def _method_handlers(service: EnvService, tokens: Tokens | None) -> dict[str, gr
     streaming = _GrpcAioHandlers(service, tokens)
     handlers = {}
     for method in pb.DESCRIPTOR.services_by_name["EnvService"].methods:
-        request, response = MESSAGE_TYPES[method.name]
+        _, response = MESSAGE_TYPES[method.name]
         if method.name in UNARY_METHODS:
             behaviour = _unary(getattr(service, method.name), tokens)
         else:
             behaviour = getattr(streaming, method.name)
         handlers[method.name] = _HANDLER_KINDS[method.client_streaming, method.server_streaming](
             behaviour,
-            request_deserializer=request.FromString,
+            request_deserializer=_deserializer(method.name),
             response_serializer=None if method.name in _ENCODED_RESPONSES else response.SerializeToString,
         )
     return handlers
@@ -253,6 +295,9 @@ async def serve(
     max_message_bytes: int = 64 * 1024 * 1024,
     lease_seconds: float = 120.0,
     max_workers: int = DEFAULT_MAX_WORKERS,
+    max_envs_per_session: int = DEFAULT_MAX_ENVS_PER_SESSION,
+    max_live_envs: int = DEFAULT_MAX_LIVE_ENVS,
+    data_dirs: tuple[str, ...] = (),
     front: str = "auto",
     busy_poll_us: int = 0,
     tls: ServerTls | None = None,
@@ -276,13 +321,17 @@ async def serve(
         lease_seconds=lease_seconds,
         max_workers=max_workers,
         loop=asyncio.get_running_loop(),
+        max_envs_per_session=max_envs_per_session,
+        max_live_envs=max_live_envs,
+        data_dirs=DataDirs(data_dirs),
     )
     running = _FRONT_CLASSES[front](service, host, port, max_message_bytes, busy_poll_us, tls, tokens)
     await running.start()
     print(f"LISTENING {_bind_address(host, running.port)}", flush=True)
     log.info(
         "serving %s on %s through the %s front, %s, %s (max sessions %d, max message %d bytes, lease %g s, "
-        "max workers %d, MuJoCo rendering through MUJOCO_GL=%s)",
+        "max workers %d, max instances %d per session and %d live, data directories %s, "
+        "MuJoCo rendering through MUJOCO_GL=%s)",
         SERVICE_NAME,
         _bind_address(host, running.port),
         front,
@@ -292,6 +341,9 @@ async def serve(
         max_message_bytes,
         lease_seconds,
         max_workers,
+        max_envs_per_session,
+        max_live_envs,
+        list(service.data_dirs.roots),
         gl.backend(),
     )
     reaper = asyncio.create_task(service.reap())

@@ -30,10 +30,14 @@ import time
 from collections.abc import Sequence
 from typing import Any, Protocol
 
+from google.protobuf.message import DecodeError
+
 import env_server
 from env_server import render, wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.datafiles import DataDirs
 from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
+from env_server.memory import release_memory
 from env_server.registry import Registry
 from env_server.session import Autoreset, Session, check_seed_range, make_session
 
@@ -57,6 +61,13 @@ CAPABILITIES = (
 FRONTS = ("auto", "native", "grpcio")
 # Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
 UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "CloseSession", "Close", "Render")
+# Instances one session may hold, and all sessions together (--max-envs-per-session,
+# --max-live-envs). A humanoid-run instance costs about 1.5 MiB and a millisecond or
+# more to build, so 4096 stays within a few GiB and Make's reply within seconds.
+DEFAULT_MAX_ENVS_PER_SESSION = 1024
+DEFAULT_MAX_LIVE_ENVS = 4096
+# Seconds from a Close to the memory release it asks for (Closes in between share it).
+RELEASE_DELAY_S = 0.2
 # Request and response message classes of every EnvService method, read once from the proto.
 MESSAGE_TYPES = {
     m.name: (getattr(pb, m.input_type.name), getattr(pb, m.output_type.name))
@@ -69,6 +80,18 @@ _AUTORESET = {
     pb.AUTORESET_MODE_NEXT_STEP: Autoreset.NEXT_STEP,
     pb.AUTORESET_MODE_DISABLED: Autoreset.DISABLED,
 }
+
+
+def decode_request(method: str, data: bytes) -> Any:
+    """`data` as `method`'s request message; bytes that do not parse are the client's error."""
+    request_type = MESSAGE_TYPES[method][0]
+    try:
+        return request_type.FromString(data)
+    except DecodeError as exc:
+        raise InvalidArgument(
+            f"{method}: expected a serialized {request_type.DESCRIPTOR.full_name}, got {len(data)} bytes "
+            f"that do not parse as one ({quote(str(exc), 200)})"
+        ) from exc
 
 
 def status_of(exc: BaseException) -> tuple[str, str]:
@@ -99,9 +122,15 @@ class EnvService:
         lease_seconds: float,
         max_workers: int,
         loop: asyncio.AbstractEventLoop,
+        max_envs_per_session: int = DEFAULT_MAX_ENVS_PER_SESSION,
+        max_live_envs: int = DEFAULT_MAX_LIVE_ENVS,
+        data_dirs: DataDirs | None = None,
     ) -> None:
         self.registry = registry
         self.max_sessions = max_sessions
+        self.max_envs_per_session = max_envs_per_session
+        self.max_live_envs = max_live_envs
+        self.data_dirs = data_dirs or DataDirs()
         self.max_workers = max_workers
         self.max_message_bytes = max_message_bytes
         self.lease_seconds = lease_seconds
@@ -110,6 +139,8 @@ class EnvService:
         self._encoders: dict[str, wire.StepEncoder] = {}  # per session, for its Step responses
         self._owners: dict[str, str | None] = {}  # per session, the client name that made it
         self._making = 0  # Make calls between the limit check and registration
+        self._making_envs = 0  # the instances those calls are building
+        self._release_pending = False
         self._lock = threading.Lock()
 
     # The exception -> status mapping, also where the native front looks for it.
@@ -129,8 +160,30 @@ class EnvService:
             self._owners.pop(session_id, None)
             if session is not None:
                 session.close()
-        if session is not None:
-            log.info("closed session %s (%s): %s; %d open", session_id, session.env_id, reason, len(self.sessions))
+        if session is None:
+            return
+        env_id = session.env_id
+        del session  # the last reference: release_memory can only return what is freed
+        self._release_soon()
+        log.info("closed session %s (%s): %s; %d open", session_id, env_id, reason, len(self.sessions))
+
+    def _release_soon(self) -> None:
+        """release_memory on the loop shortly, once for a burst of Closes (close_all, the
+        sessions of a broken stream): its full cycle collection holds the GIL for 0.1-0.3 s
+        with a few humanoid sessions open on the 2-core machine."""
+        with self._lock:
+            if self._release_pending:
+                return
+            self._release_pending = True
+        try:
+            self.loop.call_soon_threadsafe(self.loop.call_later, RELEASE_DELAY_S, self._release)
+        except RuntimeError:  # the loop is closed: the process is exiting
+            pass
+
+    def _release(self) -> None:
+        with self._lock:
+            self._release_pending = False
+        release_memory()
 
     def close_all(self) -> None:
         for session_id in list(self.sessions):
@@ -142,9 +195,11 @@ class EnvService:
         while True:
             await asyncio.sleep(period)
             deadline = time.monotonic() - self.lease_seconds
-            for session_id, session in list(self.sessions.items()):
-                if session.last_used < deadline:
-                    self.close_session(session_id, f"lease of {self.lease_seconds:g} s expired")
+            # No Session in this frame across the sleep: a loop variable left holding the
+            # last one kept a closed session's simulators alive until the next sweep.
+            expired = [sid for sid, session in list(self.sessions.items()) if session.last_used < deadline]
+            for session_id in expired:
+                self.close_session(session_id, f"lease of {self.lease_seconds:g} s expired")
 
     # -------------------------------------------------------------- unary RPCs
     # Every unary RPC takes the caller's client name (None without tokens); see "Owners".
@@ -164,27 +219,49 @@ class EnvService:
             ]
         )
 
-    async def Make(self, request: pb.MakeRequest, owner: str | None = None) -> pb.MakeResponse:
-        if request.num_envs < 1:
-            raise InvalidArgument(f"num_envs: expected >= 1, got {request.num_envs}")
-        if request.num_workers > self.max_workers:
-            raise InvalidArgument(
-                f"num_workers: expected at most {self.max_workers} (this server's --max-workers), "
-                f"got {request.num_workers}"
-            )
-        kwargs = _parse_kwargs(request.kwargs_json)
-        if request.HasField("seed"):
-            check_seed_range("seed", [request.seed, request.seed + request.num_envs - 1])
-        autoreset = _AUTORESET.get(request.autoreset_mode)
-        if autoreset is None:
-            raise InvalidArgument(f"autoreset_mode: expected one of {sorted(_AUTORESET)}, got {request.autoreset_mode}")
+    def _live_envs(self) -> int:
+        """Instances in open sessions and in Makes still building."""
+        with self._lock:  # the native front's thread may close sessions meanwhile
+            return self._making_envs + sum(session.num_envs for session in self.sessions.values())
+
+    def _check_limits(self, num_envs: int) -> None:
+        """The server-wide limits: open sessions and live instances."""
         open_now = len(self.sessions) + self._making
         if open_now >= self.max_sessions:
             raise ResourceExhausted(
                 f"session limit {self.max_sessions} reached ({open_now} open); close sessions or start "
                 "the server with --max-sessions"
             )
+        live = self._live_envs()
+        if live + num_envs > self.max_live_envs:
+            raise ResourceExhausted(
+                f"num_envs: {num_envs} more instances would pass this server's limit of {self.max_live_envs} "
+                f"live instances across all sessions (--max-live-envs; {live} live now); close sessions or ask for fewer"
+            )
+
+    async def Make(self, request: pb.MakeRequest, owner: str | None = None) -> pb.MakeResponse:
+        if request.num_envs < 1:
+            raise InvalidArgument(f"num_envs: expected >= 1, got {request.num_envs}")
+        if request.num_envs > self.max_envs_per_session:
+            raise ResourceExhausted(
+                f"num_envs: this server allows at most {self.max_envs_per_session} instances per session "
+                f"(--max-envs-per-session), got {request.num_envs}"
+            )
+        if request.num_workers > self.max_workers:
+            raise InvalidArgument(
+                f"num_workers: expected at most {self.max_workers} (this server's --max-workers), "
+                f"got {request.num_workers}"
+            )
+        kwargs = self.data_dirs.resolve_kwargs(_parse_kwargs(request.kwargs_json))
+        if request.HasField("seed"):
+            check_seed_range("seed", [request.seed, request.seed + request.num_envs - 1])
+        autoreset = _AUTORESET.get(request.autoreset_mode)
+        if autoreset is None:
+            raise InvalidArgument(f"autoreset_mode: expected one of {sorted(_AUTORESET)}, got {request.autoreset_mode}")
+        self._check_limits(request.num_envs)
         self._making += 1
+        self._making_envs += request.num_envs
+        cancel = threading.Event()
         try:
             build = functools.partial(
                 self._build,
@@ -196,16 +273,21 @@ class EnvService:
                 discount=request.discount if request.HasField("discount") else None,
                 info_keys=tuple(request.info_keys),
                 num_workers=request.num_workers,
+                cancel=cancel,
             )
             # Task constructors can take seconds (MJCF compiles, worker spawns): off the loop.
             future = self.loop.run_in_executor(None, build)
             try:
                 session = await asyncio.shield(future)
             except asyncio.CancelledError:
+                # The client went away (deadline, cancel; the native front's dropped call
+                # cancels this coroutine too): stop building and close what was built.
+                cancel.set()
                 future.add_done_callback(_close_orphan)
                 raise
         finally:
             self._making -= 1
+            self._making_envs -= request.num_envs
         with self._lock:
             self.sessions[session.id] = session
             self._encoders[session.id] = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
@@ -256,9 +338,8 @@ class EnvService:
         return asyncio.run_coroutine_threadsafe(self._answer(method, request, reply, owner), self.loop)
 
     async def _answer(self, method: str, request: bytes, reply: Reply, owner: str | None) -> None:
-        request_type, _ = MESSAGE_TYPES[method]
         try:
-            response = await getattr(self, method)(request_type.FromString(request), owner)
+            response = await getattr(self, method)(decode_request(method, request), owner)
         except Exception as exc:
             reply.error(*status_of(exc))
             return

@@ -17,6 +17,7 @@ import dataclasses
 import enum
 import logging
 import math
+import threading
 import time
 import uuid
 from collections.abc import Mapping, Sequence
@@ -473,19 +474,21 @@ def make_session(
     info_keys: Sequence[str] = (),
     session_id: str | None = None,
     num_workers: int = 0,
+    cancel: threading.Event | None = None,
 ) -> Session:
     """Validate the request, construct num_envs Tasks and wrap them in a Session.
 
     num_workers = 0 keeps the Tasks in this process; N >= 1 splits them into N + 1
     shares, one kept here and one per worker process, stepped in parallel. May take
-    seconds for heavy simulators; the server runs it in a thread.
+    seconds for heavy simulators; the server runs it in a thread, and sets `cancel` when
+    the client goes away (construction stops before the next instance).
     """
     if num_envs < 1:
         raise InvalidArgument(f"num_envs: expected >= 1, got {num_envs}")
     discount = DEFAULT_DISCOUNT if discount is None else float(discount)
     if not (math.isfinite(discount) and 0.0 <= discount <= 1.0):
         raise InvalidArgument(f"discount: expected 0 <= discount <= 1, got {discount}")
-    instances = build_instances(entry, kwargs, num_envs, num_workers, info_keys)
+    instances = build_instances(entry, kwargs, num_envs, num_workers, info_keys, cancel)
     try:
         return Session(
             entry.env_id,

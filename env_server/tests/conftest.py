@@ -35,6 +35,15 @@ def server_env() -> dict[str, str]:
 @contextlib.contextmanager
 def running_server(*args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None) -> Iterator[str]:
     """Start a server, yield its address from the LISTENING line, stop it at the end."""
+    with server_process(*args, timeout=timeout, extra_env=extra_env) as (_, address):
+        yield address
+
+
+@contextlib.contextmanager
+def server_process(
+    *args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None
+) -> Iterator[tuple[subprocess.Popen, str]]:
+    """running_server, yielding the server's process too."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "env_server", "--port", "0", *args],
         stdout=subprocess.PIPE,
@@ -48,7 +57,7 @@ def running_server(*args: str, timeout: float = 30.0, extra_env: dict[str, str] 
     reader.join(timeout)
     try:
         assert lines and lines[0].startswith("LISTENING "), f"server did not report LISTENING: {lines}"
-        yield lines[0].split()[1]
+        yield proc, lines[0].split()[1]
     finally:
         proc.terminate()
         try:

@@ -14,7 +14,6 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use futures::{FutureExt, Stream, StreamExt};
-use mo_env_proto::v1::env_service_server::EnvService;
 use mo_env_proto::v1::{
     CloseRequest, CloseResponse, GetVersionRequest, GetVersionResponse, ListEnvsRequest,
     ListEnvsResponse, MakeRequest, MakeResponse, RenderRequest, RenderResponse, ResetRequest,
@@ -24,10 +23,11 @@ use prost::Message;
 use pyo3::prelude::*;
 use pyo3::types::PyBytes;
 use tokio::sync::oneshot;
-use tonic::{Request, Response, Status, Streaming};
+use tonic::{Code, Request, Response, Status, Streaming};
 
 use crate::auth::{self, Tokens};
-use crate::status;
+use crate::pb::env_service_server::EnvService;
+use crate::{codec, status};
 
 /// What a submitted unary call answers: a serialized response or a status.
 type Outcome = Result<Bytes, Status>;
@@ -238,8 +238,14 @@ impl StreamState {
                 }
                 Some(result)
             }
-            // Half-close, a reset stream, or an undecodable (e.g. oversized) request: the
-            // client is done with this stream, and its sessions close with it.
+            // A request that does not parse: the client's error, like a bad action; its
+            // sessions stay usable.
+            Some(Err(status)) if status.code() == Code::InvalidArgument => {
+                self.steps.finish(true);
+                Some(Err(codec::in_stream(status)))
+            }
+            // Half-close, a reset stream, or an oversized request: the client is done
+            // with this stream, and its sessions close with it.
             Some(Err(status)) => {
                 self.steps.finish(false);
                 Some(Err(status::oversize_as_resource_exhausted(status)))

@@ -6,6 +6,7 @@ tests/plugins is put on the server's PYTHONPATH; its dist-info declares these in
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import gymnasium
@@ -79,3 +80,24 @@ class DictObsTask(Task):
     def step(self, action: Any) -> StepOutcome:
         self._pos = self._pos + action
         return StepOutcome(self._obs(), np.ones(1, np.float32), False, False)
+
+
+class SlowBuildTask(Task):
+    """Takes `build_seconds` to construct; its observation is how many instances this
+    process has constructed so far, so a test can tell whether a Make kept building."""
+
+    description = "test only: slow constructor; observes the process's construction count"
+    objectives = (Objective("none", "always 0", 0.0, 0.0),)
+    constructed = 0
+
+    def __init__(self, build_seconds: float = 0.05) -> None:
+        time.sleep(build_seconds)
+        SlowBuildTask.constructed += 1
+        self.observation_space = gymnasium.spaces.Box(0.0, np.inf, (1,), np.float64)
+        self.action_space = gymnasium.spaces.Discrete(2)
+
+    def reset(self, seed: int | None = None) -> tuple[Any, dict[str, Any]]:
+        return np.array([SlowBuildTask.constructed], np.float64), {}
+
+    def step(self, action: Any) -> StepOutcome:
+        return StepOutcome(np.array([SlowBuildTask.constructed], np.float64), np.zeros(1, np.float32), False, False)
