@@ -6,7 +6,7 @@
 use agent::algo::dual::positive;
 use agent::algo::estep::{advantage_estep, exact_estep, sampled_estep};
 use agent::algo::movmpo::{UnrollTargetInputs, unroll_targets};
-use agent::algo::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
+use agent::algo::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
 use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use agent::nets::GaussianParams;
 use serde_json::Value;
@@ -116,10 +116,20 @@ fn gaussian_log_likelihood() {
     );
 }
 
+/// A number as a 0-d tensor, or a list as a 1-d tensor.
+fn number_or_vector(v: &Value) -> Tensor {
+    match v.as_array() {
+        Some(_) => vector(v),
+        None => Tensor::from(scalar(v) as f32),
+    }
+}
+
 /// The decoupled Gaussian M-step on golden file `g`'s policies and multipliers, for
 /// `actions [M, B, D]` and `weights [M, B]`: KLs, both losses, and their gradients.
+/// The multipliers (and so the KLs) are numbers for the summed constraint and
+/// `[D]` lists for the per-dimension one.
 #[track_caller]
-fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
+fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor, constraint: KlConstraint) {
     let online = GaussianParams {
         mean: tensor(&g["online_mean"]).set_requires_grad(true),
         std: tensor(&g["online_std"]).set_requires_grad(true),
@@ -128,25 +138,18 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
         mean: tensor(&g["target_mean"]),
         std: tensor(&g["target_std"]),
     };
-    let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
-    let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
+    let alpha_mean = number_or_vector(&g["alpha_mean"]).set_requires_grad(true);
+    let alpha_cov = number_or_vector(&g["alpha_cov"]).set_requires_grad(true);
     let region = TrustRegion {
         alpha_mean: &alpha_mean,
         alpha_cov: &alpha_cov,
         beta_mean: scalar(&g["beta_mean"]),
         beta_cov: scalar(&g["beta_cov"]),
+        constraint,
     };
     let out = gaussian_mstep(&online, &target, actions, weights, &region);
-    assert_close_scalar(
-        out.kl_mean.double_value(&[]),
-        scalar(&g["kl_mean"]),
-        "KL_mu",
-    );
-    assert_close_scalar(
-        out.kl_cov.double_value(&[]),
-        scalar(&g["kl_cov"]),
-        "KL_Sigma",
-    );
+    assert_close(&out.kl_mean, &number_or_vector(&g["kl_mean"]), "KL_mu");
+    assert_close(&out.kl_cov, &number_or_vector(&g["kl_cov"]), "KL_Sigma");
     assert_close_scalar(
         out.policy_loss.double_value(&[]),
         scalar(&g["policy_loss"]),
@@ -158,14 +161,14 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
         "alpha loss",
     );
     (out.policy_loss + out.alpha_loss).backward();
-    assert_close_scalar(
-        alpha_mean.grad().double_value(&[]),
-        scalar(&g["grad_alpha_mean"]),
+    assert_close(
+        &alpha_mean.grad(),
+        &number_or_vector(&g["grad_alpha_mean"]),
         "d/d alpha_mu = beta_mu - KL_mu",
     );
-    assert_close_scalar(
-        alpha_cov.grad().double_value(&[]),
-        scalar(&g["grad_alpha_cov"]),
+    assert_close(
+        &alpha_cov.grad(),
+        &number_or_vector(&g["grad_alpha_cov"]),
         "d/d alpha_Sigma",
     );
     // Stop-gradients: alpha enters the policy loss only as a constant, the KL enters
@@ -185,7 +188,15 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
 #[test]
 fn decoupled_kl_terms_and_multiplier_losses() {
     let g = golden("mstep_gaussian");
-    check_gaussian_mstep(&g, &tensor(&g["actions"]), &tensor(&g["weights"]));
+    let (actions, weights) = (tensor(&g["actions"]), tensor(&g["weights"]));
+    check_gaussian_mstep(&g, &actions, &weights, KlConstraint::Summed);
+}
+
+#[test]
+fn per_dimension_kl_terms_and_multiplier_losses() {
+    let g = golden("mstep_gaussian_per_dimension");
+    let (actions, weights) = (tensor(&g["actions"]), tensor(&g["weights"]));
+    check_gaussian_mstep(&g, &actions, &weights, KlConstraint::PerDimension);
 }
 
 #[test]
@@ -308,5 +319,6 @@ fn vmpo_policy_fit_and_multiplier_losses() {
         &g,
         &tensor(&g["actions"]).unsqueeze(0),
         &(w * n).unsqueeze(0),
+        KlConstraint::Summed,
     );
 }

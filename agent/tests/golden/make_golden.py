@@ -161,6 +161,48 @@ write(
     },
 )
 
+# ---------------------------------------------------------------- Gaussian M-step, per dimension
+# Acme's per_dim_constraining: the same policies, samples and weights, but each action
+# dimension's KL (averaged over states) is bounded by beta on its own, with one alpha_mu
+# and one alpha_Sigma per dimension: sum_d sg(alpha_d) KL_d in the policy loss and
+# sum_d alpha_d (beta - sg(KL_d)) in the multipliers' loss.
+mu_o.grad, sd_o.grad = None, None
+alpha_mu_d = torch.tensor([1.3, 0.4, 2.0], requires_grad=True)
+alpha_sigma_d = torch.tensor([10.0, 3.0, 0.5], requires_grad=True)
+nll = -(w * (N(mu_o, sd_t).log_prob(actions).sum(-1) + N(mu_t, sd_o).log_prob(actions).sum(-1))).sum(0).mean()
+kl_mu_d = torch.distributions.kl_divergence(N(mu_t, sd_t), N(mu_o, sd_t)).mean(0)  # [D]
+kl_sigma_d = torch.distributions.kl_divergence(N(mu_t, sd_t), N(mu_t, sd_o)).mean(0)  # [D]
+policy_loss = nll
+alpha_loss = 0.0
+for d in range(3):
+    policy_loss = policy_loss + alpha_mu_d[d].detach() * kl_mu_d[d] + alpha_sigma_d[d].detach() * kl_sigma_d[d]
+    alpha_loss = alpha_loss + alpha_mu_d[d] * (beta_mu - kl_mu_d[d].detach())
+    alpha_loss = alpha_loss + alpha_sigma_d[d] * (beta_sigma - kl_sigma_d[d].detach())
+(policy_loss + alpha_loss).backward()
+write(
+    "mstep_gaussian_per_dimension",
+    {
+        "online_mean": t(mu_o),
+        "online_std": t(sd_o),
+        "target_mean": t(mu_t),
+        "target_std": t(sd_t),
+        "actions": t(actions),
+        "weights": t(w),
+        "alpha_mean": alpha_mu_d.tolist(),
+        "alpha_cov": alpha_sigma_d.tolist(),
+        "beta_mean": beta_mu,
+        "beta_cov": beta_sigma,
+        "kl_mean": kl_mu_d.tolist(),
+        "kl_cov": kl_sigma_d.tolist(),
+        "policy_loss": policy_loss.item(),
+        "alpha_loss": alpha_loss.item(),
+        "grad_alpha_mean": alpha_mu_d.grad.tolist(),
+        "grad_alpha_cov": alpha_sigma_d.grad.tolist(),
+        "grad_online_mean": t(mu_o.grad),
+        "grad_online_std": t(sd_o.grad),
+    },
+)
+
 # ---------------------------------------------------------------- categorical M-step
 logits_o = torch.tensor([[0.1, 0.5, -0.3], [1.0, -1.0, 0.0]], requires_grad=True)
 logits_t = torch.tensor([[0.0, 0.6, -0.2], [0.8, -0.9, 0.1]])
