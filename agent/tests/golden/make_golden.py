@@ -1,8 +1,8 @@
 """Expected values for agent/tests/golden.rs, computed independently in PyTorch (float64).
 
 Run from the repo root:  .venv/bin/python agent/tests/golden/make_golden.py
-It rewrites agent/tests/golden/*.json. The formulas follow the paper (Abdolmaleki et al.
-2020, appendix C.2, C.3, D, E.1) directly, with explicit loops and torch.distributions
+It rewrites agent/tests/golden/*.json (the whole-step ones through make_golden_step.py).
+The formulas follow the paper (Abdolmaleki et al. 2020, appendix C.2, C.3, D, E.1) directly, with explicit loops and torch.distributions
 where possible, not the vectorised forms used by the Rust code.
 """
 
@@ -10,6 +10,7 @@ import json
 import math
 import pathlib
 
+import make_golden_step
 import torch
 
 torch.set_default_dtype(torch.float64)
@@ -451,4 +452,5 @@ write(
         "grad_online_std": t(os_.grad),
     },
 )
+make_golden_step.main()
 print("wrote", sorted(p.name for p in OUT.glob("*.json")))
