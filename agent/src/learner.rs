@@ -167,7 +167,8 @@ fn labels(values: &[f32], objectives: &[String], parts: bool) -> Vec<String> {
 
 impl LearnerRecord {
     /// The record as TensorBoard scalars (`learner/...`, `throughput/...`), labelled by
-    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts).
+    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts,
+    /// each the mean over action dimensions under a per-dimension KL constraint).
     pub fn scalars(&self, objectives: &[String]) -> Vec<Scalar> {
         let mut out = Vec::new();
         let groups: [(&str, &[f32], bool); 5] = [
