@@ -124,3 +124,21 @@ fn per_dimension_multipliers_round_trip() {
     step_alike(&mut learner, &mut restored, &batch, 5);
     assert_eq!(restored.alpha_by_part(), learner.alpha_by_part());
 }
+
+#[test]
+fn movmpo_per_dimension_multipliers_round_trip() {
+    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    let dir = tempfile::tempdir().unwrap();
+    // MO-V-MPO fits its policy through the same trust region, so the option applies.
+    let learner = common::movmpo_mocap_learner_with(|cfg| {
+        cfg.vmpo.kl_constraint = agent::config::KlConstraint::PerDimension;
+    });
+    let (mut learner, mut restored) = trained_and_restored(learner, dir.path());
+    let alpha = learner.alpha_by_part();
+    assert_eq!(alpha.iter().map(Vec::len).collect::<Vec<_>>(), vec![2, 2]);
+    assert_eq!(restored.alpha_by_part(), alpha);
+    let batch = random_batch(&learner, 99);
+    step_alike(&mut learner, &mut restored, &batch, 5);
+    assert_eq!(restored.alpha_by_part(), learner.alpha_by_part());
+}
