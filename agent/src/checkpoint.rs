@@ -12,11 +12,21 @@
 //! an existing `DIR` is renamed to `DIR.old-<pid>`, the new one renamed to `DIR`, and
 //! only then is the old one removed. A crash leaves either the old or the new
 //! checkpoint complete under one of those names.
+//!
+//! `duals/alpha` is `[2]` for a Gaussian policy with a summed KL constraint, `[2 D]`
+//! with a per-dimension one (`algo/dual.rs`), `[1]` for a categorical policy; the
+//! stored config rebuilds the learner with the same shape.
+//!
+//! The online networks' parameters alone also go in and out as named arrays
+//! (`Learner::parameters`, `Learner::load_parameters`), e.g. from a reference
+//! implementation.
 
 use crate::algo::adam::AdamStateError;
 use crate::algo::state::Critics;
 use crate::algo::{Learner, LearnerDims, LearnerError};
 use crate::config::LearnerConfig;
+use crate::nets::NamedArray;
+use crate::nets::snapshot::{load_named, named_arrays};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -134,6 +144,31 @@ fn read_tensors(path: &Path, device: Device) -> Result<HashMap<String, Tensor>, 
 }
 
 impl Learner {
+    /// The online policy's and critics' parameters, by VarStore name (`policy.*`,
+    /// `critic.*`), sorted by name.
+    pub fn parameters(&self) -> Vec<NamedArray> {
+        let mut params = named_arrays(&self.policy_vs);
+        params.extend(named_arrays(&self.critic_vs));
+        params
+    }
+
+    /// Replaces every online parameter (names and shapes as `parameters` gives them)
+    /// and copies them into the target networks, as construction does with its own
+    /// initialisation. Optimizer moments and duals are left as they are.
+    pub fn load_parameters(&mut self, params: &[NamedArray]) -> Result<(), LearnerError> {
+        let (policy, critic): (Vec<NamedArray>, Vec<NamedArray>) = params
+            .iter()
+            .cloned()
+            .partition(|p| p.name.starts_with("policy."));
+        load_named(&policy, &self.policy_vs)?;
+        load_named(&critic, &self.critic_vs)?;
+        self.target_policy_vs.copy(&self.policy_vs)?;
+        if let Critics::Q { target_vs, .. } = &mut self.critics {
+            target_vs.copy(&self.critic_vs)?;
+        }
+        Ok(())
+    }
+
     /// Writes the full learner state to `dir` atomically (see module docs).
     pub fn save_checkpoint(&self, dir: &Path) -> Result<(), CheckpointError> {
         let name = dir

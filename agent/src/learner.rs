@@ -139,9 +139,11 @@ pub struct LearnerRecord {
     pub temperature: Vec<f32>,
     /// Per objective: realised KL(q_k || pi_old).
     pub estep_kl: Vec<f32>,
-    /// Lagrange multipliers (alpha_mu, alpha_Sigma) or (alpha).
+    /// Lagrange multipliers (alpha_mu, alpha_Sigma) or (alpha); with a per-dimension
+    /// KL constraint, the mean over action dimensions of each.
     pub alpha: Vec<f32>,
-    /// KL(pi_old || pi) parts before the update.
+    /// KL(pi_old || pi) parts before the update; with a per-dimension KL constraint,
+    /// the mean over action dimensions of each (`LearnerStats::policy_kl`).
     pub policy_kl: Vec<f32>,
     /// Milliseconds of the step.
     pub step_ms: f64,
@@ -165,7 +167,8 @@ fn labels(values: &[f32], objectives: &[String], parts: bool) -> Vec<String> {
 
 impl LearnerRecord {
     /// The record as TensorBoard scalars (`learner/...`, `throughput/...`), labelled by
-    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts).
+    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts,
+    /// each the mean over action dimensions under a per-dimension KL constraint).
     pub fn scalars(&self, objectives: &[String]) -> Vec<Scalar> {
         let mut out = Vec::new();
         let groups: [(&str, &[f32], bool); 5] = [

@@ -104,3 +104,41 @@ fn movmpo_with_the_mocap_torso_round_trips() {
     let critic_loss = step_alike(&mut learner, &mut restored, &batch, 77);
     assert_eq!(critic_loss.len(), 2, "one value head per objective");
 }
+
+#[test]
+fn per_dimension_multipliers_round_trip() {
+    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    let dir = tempfile::tempdir().unwrap();
+    let learner = common::continuous_learner_with(|cfg| {
+        cfg.mpo.kl_constraint = agent::config::KlConstraint::PerDimension;
+    });
+    let (mut learner, mut restored) = trained_and_restored(learner, dir.path());
+    // One alpha_mu and one alpha_Sigma per action dimension (D = 2), and the
+    // dimensions have moved apart: each follows its own KL.
+    let alpha = learner.alpha_by_part();
+    assert_eq!(alpha.iter().map(Vec::len).collect::<Vec<_>>(), vec![2, 2]);
+    assert_ne!(alpha[0][0], alpha[0][1]);
+    assert_eq!(restored.alpha_by_part(), alpha);
+    let batch = random_batch(&learner, 99);
+    step_alike(&mut learner, &mut restored, &batch, 5);
+    assert_eq!(restored.alpha_by_part(), learner.alpha_by_part());
+}
+
+#[test]
+fn movmpo_per_dimension_multipliers_round_trip() {
+    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    let dir = tempfile::tempdir().unwrap();
+    // MO-V-MPO fits its policy through the same trust region, so the option applies.
+    let learner = common::movmpo_mocap_learner_with(|cfg| {
+        cfg.vmpo.kl_constraint = agent::config::KlConstraint::PerDimension;
+    });
+    let (mut learner, mut restored) = trained_and_restored(learner, dir.path());
+    let alpha = learner.alpha_by_part();
+    assert_eq!(alpha.iter().map(Vec::len).collect::<Vec<_>>(), vec![2, 2]);
+    assert_eq!(restored.alpha_by_part(), alpha);
+    let batch = random_batch(&learner, 99);
+    step_alike(&mut learner, &mut restored, &batch, 5);
+    assert_eq!(restored.alpha_by_part(), learner.alpha_by_part());
+}

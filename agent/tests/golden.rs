@@ -1,16 +1,21 @@
-//! Golden-value tests: the Rust E-step, M-step, Retrace, Gaussian log-likelihood and
-//! MO-V-MPO's top-k weights, temperature loss, T-step targets and policy fit against
-//! values computed independently in PyTorch by `golden/make_golden.py`
-//! (float64; the JSON files are committed, so no Python is needed here).
+//! Golden-value tests: the Rust E-step, M-step (summed and per-dimension KL
+//! constraints), Retrace, Gaussian log-likelihood and MO-V-MPO's top-k weights,
+//! temperature loss, T-step targets and policy fit against values computed
+//! independently in PyTorch by `golden/make_golden.py`; and three whole MO-MPO learner
+//! steps (`Learner::step` with given parameters and sampling noise) against
+//! `golden/make_golden_step.py` (float64; the JSON files are committed, so no Python
+//! is needed here).
 
 use agent::algo::dual::positive;
 use agent::algo::estep::{advantage_estep, exact_estep, sampled_estep};
 use agent::algo::movmpo::{UnrollTargetInputs, unroll_targets};
-use agent::algo::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
+use agent::algo::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
 use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
-use agent::nets::GaussianParams;
+use agent::algo::{Learner, LearnerDims, NoiseSource, SnippetBatch};
+use agent::config::LearnerConfig;
+use agent::nets::{GaussianParams, NamedArray};
 use serde_json::Value;
-use tch::{Kind, Tensor};
+use tch::{Device, Kind, Tensor};
 
 fn golden(name: &str) -> Value {
     let path = format!("{}/tests/golden/{name}.json", env!("CARGO_MANIFEST_DIR"));
@@ -116,10 +121,20 @@ fn gaussian_log_likelihood() {
     );
 }
 
+/// A number as a 0-d tensor, or a list as a 1-d tensor.
+fn number_or_vector(v: &Value) -> Tensor {
+    match v.as_array() {
+        Some(_) => vector(v),
+        None => Tensor::from(scalar(v) as f32),
+    }
+}
+
 /// The decoupled Gaussian M-step on golden file `g`'s policies and multipliers, for
 /// `actions [M, B, D]` and `weights [M, B]`: KLs, both losses, and their gradients.
+/// The multipliers (and so the KLs) are numbers for the summed constraint and
+/// `[D]` lists for the per-dimension one.
 #[track_caller]
-fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
+fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor, constraint: KlConstraint) {
     let online = GaussianParams {
         mean: tensor(&g["online_mean"]).set_requires_grad(true),
         std: tensor(&g["online_std"]).set_requires_grad(true),
@@ -128,25 +143,18 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
         mean: tensor(&g["target_mean"]),
         std: tensor(&g["target_std"]),
     };
-    let alpha_mean = Tensor::from(scalar(&g["alpha_mean"]) as f32).set_requires_grad(true);
-    let alpha_cov = Tensor::from(scalar(&g["alpha_cov"]) as f32).set_requires_grad(true);
+    let alpha_mean = number_or_vector(&g["alpha_mean"]).set_requires_grad(true);
+    let alpha_cov = number_or_vector(&g["alpha_cov"]).set_requires_grad(true);
     let region = TrustRegion {
         alpha_mean: &alpha_mean,
         alpha_cov: &alpha_cov,
         beta_mean: scalar(&g["beta_mean"]),
         beta_cov: scalar(&g["beta_cov"]),
+        constraint,
     };
     let out = gaussian_mstep(&online, &target, actions, weights, &region);
-    assert_close_scalar(
-        out.kl_mean.double_value(&[]),
-        scalar(&g["kl_mean"]),
-        "KL_mu",
-    );
-    assert_close_scalar(
-        out.kl_cov.double_value(&[]),
-        scalar(&g["kl_cov"]),
-        "KL_Sigma",
-    );
+    assert_close(&out.kl_mean, &number_or_vector(&g["kl_mean"]), "KL_mu");
+    assert_close(&out.kl_cov, &number_or_vector(&g["kl_cov"]), "KL_Sigma");
     assert_close_scalar(
         out.policy_loss.double_value(&[]),
         scalar(&g["policy_loss"]),
@@ -158,14 +166,14 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
         "alpha loss",
     );
     (out.policy_loss + out.alpha_loss).backward();
-    assert_close_scalar(
-        alpha_mean.grad().double_value(&[]),
-        scalar(&g["grad_alpha_mean"]),
+    assert_close(
+        &alpha_mean.grad(),
+        &number_or_vector(&g["grad_alpha_mean"]),
         "d/d alpha_mu = beta_mu - KL_mu",
     );
-    assert_close_scalar(
-        alpha_cov.grad().double_value(&[]),
-        scalar(&g["grad_alpha_cov"]),
+    assert_close(
+        &alpha_cov.grad(),
+        &number_or_vector(&g["grad_alpha_cov"]),
         "d/d alpha_Sigma",
     );
     // Stop-gradients: alpha enters the policy loss only as a constant, the KL enters
@@ -185,7 +193,15 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor) {
 #[test]
 fn decoupled_kl_terms_and_multiplier_losses() {
     let g = golden("mstep_gaussian");
-    check_gaussian_mstep(&g, &tensor(&g["actions"]), &tensor(&g["weights"]));
+    let (actions, weights) = (tensor(&g["actions"]), tensor(&g["weights"]));
+    check_gaussian_mstep(&g, &actions, &weights, KlConstraint::Summed);
+}
+
+#[test]
+fn per_dimension_kl_terms_and_multiplier_losses() {
+    let g = golden("mstep_gaussian_per_dimension");
+    let (actions, weights) = (tensor(&g["actions"]), tensor(&g["weights"]));
+    check_gaussian_mstep(&g, &actions, &weights, KlConstraint::PerDimension);
 }
 
 #[test]
@@ -308,5 +324,118 @@ fn vmpo_policy_fit_and_multiplier_losses() {
         &g,
         &tensor(&g["actions"]).unsqueeze(0),
         &(w * n).unsqueeze(0),
+        KlConstraint::Summed,
     );
+}
+
+/// Named parameters from a golden `{name: {shape, data}}` object.
+fn named_arrays(v: &Value) -> Vec<NamedArray> {
+    v.as_object()
+        .unwrap()
+        .iter()
+        .map(|(name, t)| NamedArray {
+            name: name.clone(),
+            shape: t["shape"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_i64().unwrap())
+                .collect(),
+            data: t["data"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap() as f32)
+                .collect(),
+        })
+        .collect()
+}
+
+#[track_caller]
+fn assert_close_vec(got: &[f32], want: &Value, what: &str) {
+    assert_close(&Tensor::from_slice(got), &vector(want), what);
+}
+
+/// Whole learner steps (`Learner::step`: Retrace with the target networks, critic
+/// loss and its Adam step, E-step and temperature duals, decoupled M-step, alpha
+/// duals, the Adam steps of policy and duals, the target copy) against
+/// `make_golden_step.py`, which computes them in float64 from the same config,
+/// initial parameters, batches and sampling noise. Step 2 runs with online and
+/// target networks apart, step 3 after the target copy of step 2.
+fn check_full_steps(name: &str) {
+    let g = golden(name);
+    let cfg: LearnerConfig = serde_json::from_value(g["config"].clone()).unwrap();
+    let dims: LearnerDims = serde_json::from_value(g["dims"].clone()).unwrap();
+    let mut learner = Learner::new(cfg, dims, Device::Cpu).unwrap();
+    learner
+        .load_parameters(&named_arrays(&g["initial_parameters"]))
+        .unwrap();
+    let steps = g["steps"].as_array().unwrap();
+    let noise = steps.iter().map(|s| tensor(&s["noise"])).collect();
+    learner.set_noise_source(NoiseSource::Given(noise));
+    for (i, s) in steps.iter().enumerate() {
+        let b = &s["batch"];
+        let batch = SnippetBatch {
+            observations: tensor(&b["observations"]),
+            actions: tensor(&b["actions"]),
+            rewards: tensor(&b["rewards"]),
+            discounts: tensor(&b["discounts"]),
+            behaviour_log_probs: tensor(&b["behaviour_log_probs"]),
+            valid: tensor(&b["valid"]),
+        };
+        let stats = learner.step(&batch).unwrap();
+        let want = &s["stats"];
+        let step = i + 1;
+        assert_close_vec(
+            &stats.critic_loss,
+            &want["critic_loss"],
+            &format!("step {step}: critic loss"),
+        );
+        assert_close_vec(
+            &stats.temperature,
+            &want["temperature"],
+            &format!("step {step}: eta"),
+        );
+        assert_close_vec(
+            &stats.estep_kl,
+            &want["estep_kl"],
+            &format!("step {step}: E-step KL"),
+        );
+        assert_close_vec(
+            &stats.q_mean,
+            &want["q_mean"],
+            &format!("step {step}: mean Q"),
+        );
+        assert_close_vec(&stats.alpha, &want["alpha"], &format!("step {step}: alpha"));
+        assert_close_vec(
+            &stats.policy_kl,
+            &want["policy_kl"],
+            &format!("step {step}: policy KL"),
+        );
+        let parts = want["alpha_by_part"].as_array().unwrap();
+        for (got, want) in learner.alpha_by_part().iter().zip(parts) {
+            assert_close_vec(got, want, &format!("step {step}: alpha per dimension"));
+        }
+        let want_params = named_arrays(&s["parameters"]);
+        let got_params = learner.parameters();
+        assert_eq!(got_params.len(), want_params.len());
+        for p in &got_params {
+            let w = want_params.iter().find(|w| w.name == p.name).unwrap();
+            assert_close(
+                &Tensor::from_slice(&p.data),
+                &Tensor::from_slice(&w.data),
+                &format!("step {step}: {}", p.name),
+            );
+        }
+    }
+}
+
+#[test]
+fn full_mpo_steps_with_the_summed_kl_constraint() {
+    check_full_steps("mpo_step_summed");
+}
+
+#[test]
+fn full_mpo_steps_with_the_per_dimension_kl_constraint() {
+    check_full_steps("mpo_step_per_dimension");
 }

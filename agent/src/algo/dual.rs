@@ -6,6 +6,11 @@
 //! floored at -18 *after* the update (eta >= ~2.5e-8), as in Acme's JAX learner: a
 //! clamp inside the loss would give a clamped dual zero gradient and it could never
 //! recover (acme_mompo.md §1, §9.5).
+//!
+//! The trust region's multipliers come in `parts` groups (2 for a Gaussian policy:
+//! alpha_mu and alpha_Sigma; 1 for a categorical one) of P each (1 when the summed KL is
+//! bounded, D when each action dimension's KL is, see `mstep.rs`). They are stored
+//! flat, part by part, so a summed Gaussian's parameter is `[2]` as it always was.
 
 use super::adam::{Adam, AdamConfig};
 use tch::{Device, Kind, Tensor};
@@ -27,20 +32,28 @@ pub fn inverse_positive(value: f64) -> f64 {
     x + (-(-x).exp_m1()).ln()
 }
 
+fn host(t: &Tensor) -> Vec<f32> {
+    Vec::<f32>::try_from(&t.detach().to_device(Device::Cpu).to_kind(Kind::Float))
+        .unwrap_or_default()
+}
+
 /// All dual variables of one learner.
 #[derive(Debug)]
 pub struct Duals {
     /// Raw temperature parameters, `[K]`.
     pub temperature_param: Tensor,
-    /// Raw trust-region parameters: `[2]` = (alpha_mu, alpha_Sigma) for Gaussian
-    /// policies, `[1]` = alpha for categorical ones.
+    /// Raw trust-region parameters, `[parts * P]` part by part: (alpha_mu,
+    /// alpha_Sigma) for Gaussian policies (P = 1 or D each), (alpha) for categorical ones.
     pub alpha_param: Tensor,
+    /// Number of trust-region parts (2 Gaussian, 1 categorical).
+    alpha_parts: i64,
     pub(crate) optimizer: Adam,
 }
 
 impl Duals {
-    /// Multipliers starting at the given (positive) values.
-    pub fn new(temperatures: &[f64], alphas: &[f64], lr: f64, device: Device) -> Self {
+    /// Multipliers starting at the given (positive) values; `alphas` has one slice per
+    /// trust-region part, all of the same length P.
+    pub fn new(temperatures: &[f64], alphas: &[&[f64]], lr: f64, device: Device) -> Self {
         let make = |values: &[f64]| {
             let raw: Vec<f32> = values.iter().map(|&v| inverse_positive(v) as f32).collect();
             Tensor::from_slice(&raw)
@@ -48,7 +61,7 @@ impl Duals {
                 .set_requires_grad(true)
         };
         let temperature_param = make(temperatures);
-        let alpha_param = make(alphas);
+        let alpha_param = make(&alphas.concat());
         let params = vec![
             ("temperature".to_string(), temperature_param.shallow_clone()),
             ("alpha".to_string(), alpha_param.shallow_clone()),
@@ -58,6 +71,7 @@ impl Duals {
         Self {
             temperature_param,
             alpha_param,
+            alpha_parts: alphas.len() as i64,
             optimizer,
         }
     }
@@ -67,9 +81,9 @@ impl Duals {
         positive(&self.temperature_param)
     }
 
-    /// alpha values, `[2]` or `[1]`, differentiable.
+    /// alpha values, `[parts, P]`, differentiable.
     pub fn alpha(&self) -> Tensor {
-        positive(&self.alpha_param)
+        positive(&self.alpha_param).reshape([self.alpha_parts, -1])
     }
 
     /// Clears the dual gradients (before the backward pass that fills them).
@@ -86,13 +100,19 @@ impl Duals {
         });
     }
 
-    /// Current values as host vectors: (eta_k, alpha).
+    /// Current values as host vectors: eta_k, and per trust-region part the mean of
+    /// its P multipliers (the multiplier itself when P = 1).
     pub fn values(&self) -> (Vec<f32>, Vec<f32>) {
-        let to_vec = |t: Tensor| {
-            Vec::<f32>::try_from(&t.detach().to_device(Device::Cpu).to_kind(Kind::Float))
-                .unwrap_or_default()
-        };
-        (to_vec(self.temperature()), to_vec(self.alpha()))
+        let alpha_means = self.alpha().mean_dim(-1, false, Kind::Float);
+        (host(&self.temperature()), host(&alpha_means))
+    }
+
+    /// Every multiplier, per trust-region part: `[parts][P]`.
+    pub fn alpha_by_part(&self) -> Vec<Vec<f32>> {
+        let alpha = self.alpha();
+        (0..self.alpha_parts)
+            .map(|part| host(&alpha.get(part)))
+            .collect()
     }
 }
 
@@ -109,7 +129,7 @@ mod tests {
                 "{v}"
             );
         }
-        let mut duals = Duals::new(&[1e-7], &[1.0, 1.0], 10.0, Device::Cpu);
+        let mut duals = Duals::new(&[1e-7], &[&[1.0], &[1.0]], 10.0, Device::Cpu);
         duals.zero_grad();
         // A huge push towards 0 lands on the floor, not below.
         (duals.temperature() * 1e6).sum(Kind::Float).backward();

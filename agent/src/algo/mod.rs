@@ -14,11 +14,13 @@ pub mod estep;
 pub mod mompo;
 pub mod movmpo;
 pub mod mstep;
+pub mod noise;
 pub mod objectives;
 pub mod retrace;
 pub mod state;
 pub mod stats;
 
 pub use batch::{BatchError, SnippetBatch};
+pub use noise::{NoiseError, NoiseSource};
 pub use objectives::{BoundObjectives, LearnerDims, QSource, bind};
 pub use state::{Learner, LearnerError, LearnerStats, PhaseTimings};

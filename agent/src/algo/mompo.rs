@@ -3,12 +3,13 @@
 //!
 //! One `step` on a `SnippetBatch` of B snippets of length T does, in order:
 //! 1. **Policy evaluation** (C.2, eq. 15). The target policy draws M actions at each of
-//!    the N = (T+1)B states (all A actions for categorical policies) and the target
-//!    critic scores them: `Q' [M, N, C]`. V(s) is their mean (pi_old-weighted sum for
-//!    categorical). Retrace targets for the T*B taken pairs use the target critic, the
-//!    target policy's log-probabilities and c = min(1, pi_old/b). The online critic is
-//!    regressed on them (0.5 * squared error, mean over real pairs, summed over heads),
-//!    one Adam step. Padding after an episode's end (`valid` 0) is not regressed.
+//!    the N = (T+1)B states (noise from the learner's `NoiseSource`; all A actions for
+//!    categorical policies) and the target critic scores them: `Q' [M, N, C]`. V(s) is
+//!    their mean (pi_old-weighted sum for categorical). Retrace targets for the T*B
+//!    taken pairs use the target critic, the target policy's log-probabilities and
+//!    c = min(1, pi_old/b). The online critic is regressed on them (0.5 * squared
+//!    error, mean over real pairs, summed over heads), one Adam step. Padding after
+//!    an episode's end (`valid` 0) is not regressed.
 //! 2. **E-step** (eqs. 32-34) on the same samples at the real states (`real_states`):
 //!    the states acted from, plus a last state bootstrapped into from a real,
 //!    non-terminal step; padding and terminal observations are never acted from, so
@@ -31,7 +32,7 @@ use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec,
 };
-use crate::nets::{GaussianParams, PolicyOutput};
+use crate::nets::{ActionKind, GaussianParams, PolicyOutput};
 use std::time::Instant;
 use tch::{Kind, Tensor};
 
@@ -90,6 +91,13 @@ impl Learner {
         let obs_taken = obs_all.narrow(0, 0, t_len * b);
         let act_taken = batch.actions.flatten(0, 1);
         let heads = self.bound.critic_names.len() as i64;
+        let noise = match self.dims.action {
+            ActionKind::Continuous { dim } => Some(
+                self.noise
+                    .standard_normal(&[self.cfg.mpo.num_samples, n, dim], self.device)?,
+            ),
+            ActionKind::Discrete { .. } => None,
+        };
         let Critics::Q {
             online: critic,
             target: target_critic,
@@ -104,7 +112,10 @@ impl Learner {
             let target_out = self.target_policy.forward(&obs_all);
             let (samples, critic_q, v_all, log_prior) = match &target_out {
                 PolicyOutput::Gaussian(g) => {
-                    let samples = g.sample(self.cfg.mpo.num_samples);
+                    let noise = noise
+                        .as_ref()
+                        .expect("Gaussian policies have continuous actions");
+                    let samples = g.sample_from(noise);
                     let q = target_critic.forward_samples(&obs_all, &samples);
                     let v = q.mean_dim(0, false, Kind::Float);
                     (samples, q, v, None)

@@ -3,20 +3,27 @@
 //! Gaussian, decoupled (eqs. 18-20): with online (mu, sigma) and target (mu', sigma'),
 //! `pi_mu = N(mu, sigma')` and `pi_Sigma = N(mu', sigma)`. The loss is
 //! `-mean_s sum_j w_j [log pi_mu(a_j|s) + log pi_Sigma(a_j|s)]` with `w_j = sum_k q_k(a_j|s)`
-//! (the weights sum to K per state), plus `sg(alpha_mu) KL_mu + sg(alpha_Sigma) KL_Sigma`.
-//! The KLs are old || new, summed over action dimensions (documented choice: eq. 20
-//! bounds the full-distribution KL with one beta each; Acme's per-dimension variant is
-//! not used) and averaged over states:
-//! `KL_mu = mean_s sum_d (mu' - mu)^2 / (2 sigma'^2)`,
-//! `KL_Sigma = mean_s sum_d [log(sigma / sigma') + sigma'^2 / (2 sigma^2) - 1/2]`.
-//! The multipliers' loss is `alpha_mu (beta_mu - sg(KL_mu)) + alpha_Sigma (beta_Sigma - sg(KL_Sigma))`,
-//! so alpha grows while the KL exceeds its bound.
+//! (the weights sum to K per state), plus the trust-region terms. The KLs are
+//! old || new, per dimension
+//! `KL_mu,d = (mu'_d - mu_d)^2 / (2 sigma'_d^2)`,
+//! `KL_Sigma,d = log(sigma_d / sigma'_d) + sigma'_d^2 / (2 sigma_d^2) - 1/2`,
+//! averaged over states, and bounded in one of two ways (`KlConstraint`):
+//! - **summed** (eq. 20 as written): `KL_mu = sum_d KL_mu,d` against beta_mu with one
+//!   scalar alpha_mu (likewise Sigma). Policy term `sg(alpha_mu) KL_mu + sg(alpha_Sigma) KL_Sigma`,
+//!   multiplier loss `alpha_mu (beta_mu - sg(KL_mu)) + alpha_Sigma (beta_Sigma - sg(KL_Sigma))`.
+//! - **per dimension** (Acme's `per_dim_constraining`): every `KL_mu,d` against beta_mu
+//!   with its own alpha_mu,d; the terms above become sums over d of
+//!   `sg(alpha_mu,d) KL_mu,d` and `alpha_mu,d (beta_mu - sg(KL_mu,d))`.
+//!
+//! Either way alpha grows while its KL exceeds its bound.
 //!
 //! Categorical (A.2): `-mean_s sum_a w_a log pi(a|s) + sg(alpha) KL(pi_old || pi)` and
 //! `alpha (beta - sg(KL))`.
 //!
-//! Shape legend: M samples (or A actions), B states, D action dims.
+//! Shape legend: M samples (or A actions), B states, D action dims, P multipliers per
+//! trust-region part (1 summed, D per dimension).
 
+pub use crate::config::KlConstraint;
 use crate::nets::GaussianParams;
 use tch::{Kind, Tensor};
 
@@ -27,39 +34,47 @@ pub struct GaussianMStepOutput {
     pub policy_loss: Tensor,
     /// Scalar; gradient to alpha_mu and alpha_Sigma only.
     pub alpha_loss: Tensor,
-    /// Scalar, no gradient: KL(pi_old || pi_mu).
+    /// No gradient: KL(pi_old || pi_mu) averaged over states; a scalar (summed over
+    /// D) or `[D]` (per dimension).
     pub kl_mean: Tensor,
-    /// Scalar, no gradient: KL(pi_old || pi_Sigma).
+    /// No gradient: KL(pi_old || pi_Sigma), shaped as `kl_mean`.
     pub kl_cov: Tensor,
 }
 
 /// Bounds and multipliers of the Gaussian trust region.
 #[derive(Debug)]
 pub struct TrustRegion<'a> {
-    /// alpha_mu (scalar, positive, may require grad).
+    /// alpha_mu: scalar or `[1]` (summed), `[D]` (per dimension); positive, may
+    /// require grad.
     pub alpha_mean: &'a Tensor,
-    /// alpha_Sigma (scalar, positive, may require grad).
+    /// alpha_Sigma, shaped as `alpha_mean`.
     pub alpha_cov: &'a Tensor,
+    /// Whether the bounds apply to the summed KL or to each dimension's.
+    pub constraint: KlConstraint,
     /// beta_mu.
     pub beta_mean: f64,
     /// beta_Sigma.
     pub beta_cov: f64,
 }
 
-/// Decoupled KL terms, each `[B]` summed over D.
+/// The decoupled KL terms of one state and action dimension.
+#[derive(Debug)]
+pub struct DecoupledKl {
+    /// KL(pi_old || pi_mu).
+    pub mean: Tensor,
+    /// KL(pi_old || pi_Sigma).
+    pub cov: Tensor,
+}
+
+/// Decoupled KL terms per state and action dimension.
 /// # Shapes
-/// `online, target: [B, D] -> ([B], [B])`.
-pub fn decoupled_kl(online: &GaussianParams, target: &GaussianParams) -> (Tensor, Tensor) {
+/// `online, target: [B, D] -> [B, D]` each.
+pub fn decoupled_kl(online: &GaussianParams, target: &GaussianParams) -> DecoupledKl {
     let target_var = target.std.square();
-    let kl_mean = ((&target.mean - &online.mean).square() / (&target_var * 2.0)).sum_dim_intlist(
-        -1,
-        false,
-        Kind::Float,
-    );
-    let kl_cov = ((&online.std / &target.std).log() + &target_var / (online.std.square() * 2.0)
-        - 0.5)
-        .sum_dim_intlist(-1, false, Kind::Float);
-    (kl_mean, kl_cov)
+    DecoupledKl {
+        mean: (&target.mean - &online.mean).square() / (&target_var * 2.0),
+        cov: (&online.std / &target.std).log() + &target_var / (online.std.square() * 2.0) - 0.5,
+    }
 }
 
 /// Decoupled Gaussian M-step loss.
@@ -85,13 +100,22 @@ pub fn gaussian_mstep(
     let nll = -(weights.detach() * log_lik)
         .sum_dim_intlist(0, false, Kind::Float)
         .mean(Kind::Float);
-    let (kl_mean_s, kl_cov_s) = decoupled_kl(online, &target);
-    let kl_mean = kl_mean_s.mean(Kind::Float);
-    let kl_cov = kl_cov_s.mean(Kind::Float);
-    let policy_loss =
-        nll + region.alpha_mean.detach() * &kl_mean + region.alpha_cov.detach() * &kl_cov;
-    let alpha_loss = region.alpha_mean * (region.beta_mean - kl_mean.detach())
-        + region.alpha_cov * (region.beta_cov - kl_cov.detach());
+    let kl = decoupled_kl(online, &target);
+    let constrained = |kl: &Tensor| {
+        let over_states = kl.mean_dim(0, false, Kind::Float);
+        match region.constraint {
+            KlConstraint::Summed => over_states.sum(Kind::Float),
+            KlConstraint::PerDimension => over_states,
+        }
+    };
+    let kl_mean = constrained(&kl.mean);
+    let kl_cov = constrained(&kl.cov);
+    // Sums over the multipliers: one term each (summed) or one per dimension.
+    let penalty = (region.alpha_mean.detach() * &kl_mean).sum(Kind::Float)
+        + (region.alpha_cov.detach() * &kl_cov).sum(Kind::Float);
+    let policy_loss = nll + penalty;
+    let alpha_loss = (region.alpha_mean * (region.beta_mean - kl_mean.detach())).sum(Kind::Float)
+        + (region.alpha_cov * (region.beta_cov - kl_cov.detach())).sum(Kind::Float);
     GaussianMStepOutput {
         policy_loss,
         alpha_loss,
@@ -150,13 +174,16 @@ mod tests {
             mean: Tensor::randn([4, 3], opts),
             std: Tensor::rand([4, 3], opts) + 0.1,
         };
-        let (km, kc) = decoupled_kl(&target, &target);
-        assert!(km.abs().max().double_value(&[]) < 1e-7 && kc.abs().max().double_value(&[]) < 1e-6);
+        let kl = decoupled_kl(&target, &target);
+        assert!(
+            kl.mean.abs().max().double_value(&[]) < 1e-7
+                && kl.cov.abs().max().double_value(&[]) < 1e-6
+        );
         let moved = GaussianParams {
             mean: &target.mean + 0.1,
             std: &target.std * 1.1,
         };
-        let (km, kc) = decoupled_kl(&moved, &target);
-        assert!(km.min().double_value(&[]) > 0.0 && kc.min().double_value(&[]) > 0.0);
+        let kl = decoupled_kl(&moved, &target);
+        assert!(kl.mean.min().double_value(&[]) > 0.0 && kl.cov.min().double_value(&[]) > 0.0);
     }
 }

@@ -16,13 +16,15 @@
 use super::adam::{Adam, AdamConfig};
 use super::batch::{BatchError, SnippetBatch};
 use super::dual::Duals;
-use super::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
+use super::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
+use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
 use crate::nets::{
-    ActOutput, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot, ValueNet,
+    ActOutput, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot, SnapshotError,
+    ValueNet,
 };
 use std::time::Instant;
 use tch::{Device, Kind, Tensor, nn};
@@ -39,6 +41,12 @@ pub enum LearnerError {
     /// libtorch failed.
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),
+    /// Given sampling noise does not fit the step.
+    #[error(transparent)]
+    Noise(#[from] NoiseError),
+    /// Given parameters do not fit the networks.
+    #[error(transparent)]
+    Parameters(#[from] SnapshotError),
 }
 
 /// A target network (C.1): same layout as `online`'s network, built by `build` on a new
@@ -107,6 +115,8 @@ pub struct Learner {
     pub(crate) epsilon: Tensor,
     /// `[K_env, C]`: which reward each critic head learns.
     pub(crate) critic_reward_weights: Tensor,
+    /// Where the sampled actions' noise comes from.
+    pub(crate) noise: NoiseSource,
     pub(crate) step: u64,
 }
 
@@ -169,13 +179,26 @@ impl Learner {
         let policy_opt = Adam::for_var_store(&policy_vs, adam);
         let critic_opt = Adam::for_var_store(&critic_vs, adam);
         let temperatures = vec![settings.init_temperature; bound.objectives.len()];
-        let alphas = match dims.action {
-            ActionKind::Continuous { .. } => {
-                vec![settings.init_alpha_mean, settings.init_alpha_cov]
+        let alphas: Vec<Vec<f64>> = match dims.action {
+            ActionKind::Continuous { dim } => {
+                let per_part = match settings.kl_constraint {
+                    KlConstraint::Summed => 1,
+                    KlConstraint::PerDimension => dim as usize,
+                };
+                vec![
+                    vec![settings.init_alpha_mean; per_part],
+                    vec![settings.init_alpha_cov; per_part],
+                ]
             }
-            ActionKind::Discrete { .. } => vec![settings.init_alpha_categorical],
+            ActionKind::Discrete { .. } => vec![vec![settings.init_alpha_categorical]],
         };
-        let duals = Duals::new(&temperatures, &alphas, settings.dual_learning_rate, device);
+        let alpha_parts: Vec<&[f64]> = alphas.iter().map(Vec::as_slice).collect();
+        let duals = Duals::new(
+            &temperatures,
+            &alpha_parts,
+            settings.dual_learning_rate,
+            device,
+        );
         let eps: Vec<f32> = bound.objectives.iter().map(|o| o.epsilon as f32).collect();
         let epsilon = Tensor::from_slice(&eps).to_device(device);
         let w: Vec<f32> = bound
@@ -204,6 +227,7 @@ impl Learner {
             duals,
             epsilon,
             critic_reward_weights,
+            noise: NoiseSource::Draw,
             step: 0,
         })
     }
@@ -226,6 +250,19 @@ impl Learner {
     /// Bound objectives (E-step order) and critic heads.
     pub fn objectives(&self) -> &BoundObjectives {
         &self.bound
+    }
+
+    /// The trust-region multipliers, per part (alpha_mu, alpha_Sigma; or alpha): one
+    /// value each, or one per action dimension with a per-dimension KL constraint.
+    /// `LearnerStats::alpha` reports each part's mean.
+    pub fn alpha_by_part(&self) -> Vec<Vec<f32>> {
+        self.duals.alpha_by_part()
+    }
+
+    /// Replaces the source of the sampling noise (by default drawn afresh), e.g. with
+    /// given tensors that a reference implementation uses too.
+    pub fn set_noise_source(&mut self, source: NoiseSource) {
+        self.noise = source;
     }
 
     /// Learner steps done.
@@ -281,7 +318,9 @@ impl Learner {
 
     /// Policy fit under the decoupled trust region plus `temperature_loss`; one Adam
     /// step on the policy and one on the duals. Returns the KL parts (KL_mu, KL_Sigma)
-    /// or (KL) between target and online policy before the update.
+    /// or (KL) between target and online policy before the update; with a
+    /// per-dimension constraint each part is the mean over the D dimensions' KLs (the
+    /// number each beta bounds).
     /// # Shapes
     /// Gaussian: `actions [M, N, D]`, `weights [M, N]`; categorical: `actions`
     /// unused, `weights [A, N]`. The loss is `-mean_N sum_M w log pi`, so weights that
@@ -294,6 +333,7 @@ impl Learner {
         weights: &Tensor,
         temperature_loss: &Tensor,
     ) -> Tensor {
+        // [parts, P]
         let alpha = self.duals.alpha();
         let s = self.settings;
         let (policy_loss, alpha_loss, policy_kl) = match (online, target) {
@@ -304,17 +344,15 @@ impl Learner {
                     alpha_cov: &alpha_cov,
                     beta_mean: s.beta_mean,
                     beta_cov: s.beta_cov,
+                    constraint: s.kl_constraint,
                 };
                 let out = gaussian_mstep(online, target, actions, weights, &region);
-                (
-                    out.policy_loss,
-                    out.alpha_loss,
-                    Tensor::stack(&[out.kl_mean, out.kl_cov], 0),
-                )
+                let parts = [&out.kl_mean, &out.kl_cov].map(|kl| kl.mean(Kind::Float));
+                (out.policy_loss, out.alpha_loss, Tensor::stack(&parts, 0))
             }
             (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
-                let out =
-                    categorical_mstep(online, target, weights, &alpha.get(0), s.beta_categorical);
+                let alpha = alpha.reshape([-1]).get(0);
+                let out = categorical_mstep(online, target, weights, &alpha, s.beta_categorical);
                 (out.policy_loss, out.alpha_loss, out.kl.unsqueeze(0))
             }
             _ => unreachable!("online and target policies have the same kind"),

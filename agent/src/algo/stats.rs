@@ -29,9 +29,14 @@ pub struct LearnerStats {
     /// Per objective: mean Q_k over the sampled actions (MO-MPO); per critic head:
     /// mean V_c over the real steps (MO-V-MPO).
     pub q_mean: Vec<f32>,
-    /// (alpha_mu, alpha_Sigma) or (alpha) after the update.
+    /// (alpha_mu, alpha_Sigma) or (alpha) after the update. With a per-dimension KL
+    /// constraint, each is the mean of its D multipliers (`Learner::alpha_by_part`
+    /// has them all).
     pub alpha: Vec<f32>,
-    /// (KL_mu, KL_Sigma) or (KL) between the target and online policy before the update.
+    /// (KL_mu, KL_Sigma) or (KL) between the target and online policy before the
+    /// update, averaged over states. Summed constraint: the KL of the whole Gaussian
+    /// (compare with beta); per-dimension constraint: the mean over the D dimensions
+    /// of each dimension's KL (also compared with beta; times D it is the summed KL).
     pub policy_kl: Vec<f32>,
     /// Phase timings.
     pub timings: PhaseTimings,

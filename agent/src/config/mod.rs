@@ -13,7 +13,7 @@ mod vmpo;
 
 pub use mpo::MpoConfig;
 pub use network::{Architecture, NetworkConfig};
-pub use shared::SharedSettings;
+pub use shared::{KlConstraint, SharedSettings};
 pub use vmpo::VmpoConfig;
 
 use serde::{Deserialize, Serialize};
@@ -362,6 +362,14 @@ mod tests {
             matches!(c.algorithm, Algorithm::ScalarizedMpo { ref weights, .. } if weights.len() == 2)
         );
         c.validate().unwrap();
+        let per_dim: LearnerConfig =
+            toml::from_str("[mpo]\nkl_constraint = \"per_dimension\"\n").unwrap();
+        assert_eq!(per_dim.mpo.kl_constraint, KlConstraint::PerDimension);
+        assert_eq!(c.mpo.kl_constraint, KlConstraint::Summed, "the default");
+        let err = toml::from_str::<LearnerConfig>("[vmpo]\nkl_constraint = \"per_dim\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("per_dimension"), "{err}");
         let bad = "[mpo]\nbeta_mena = 1.0\n";
         let err = toml::from_str::<LearnerConfig>(bad)
             .unwrap_err()

@@ -3,6 +3,23 @@
 //! duals, trust region, targets, batching) has one source.
 
 use super::LearnerConfig;
+use serde::{Deserialize, Serialize};
+
+/// How the Gaussian trust region of the policy fit (eq. 20 for MO-MPO, eq. 25 for
+/// MO-V-MPO) bounds KL(pi_old || pi) over the D action dimensions. Categorical
+/// policies have one KL either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KlConstraint {
+    /// The KL of the full D-dimensional Gaussian (summed over dimensions) is bounded
+    /// by beta, with one alpha_mu and one alpha_Sigma: eq. 20 as the paper writes it.
+    #[default]
+    Summed,
+    /// Each dimension's KL is bounded by beta separately, with D multipliers
+    /// alpha_mu and D alpha_Sigma: Acme's `per_dim_constraining` (its default). With
+    /// the same beta this allows up to D times more change per step than `summed`.
+    PerDimension,
+}
 
 /// The hyperparameters both algorithm families have, read from `mpo` (MO-MPO,
 /// scalarized MPO) or `vmpo` (MO-V-MPO, scalarized V-MPO), so that the shared
@@ -39,6 +56,8 @@ pub struct SharedSettings {
     pub target_update_period: u64,
     /// Gradient clip of policy and critics.
     pub grad_clip_norm: Option<f64>,
+    /// Summed or per-dimension Gaussian trust region.
+    pub kl_constraint: KlConstraint,
 }
 
 impl LearnerConfig {
@@ -62,6 +81,7 @@ impl LearnerConfig {
                 discount: v.discount,
                 target_update_period: v.target_update_period,
                 grad_clip_norm: v.grad_clip_norm,
+                kl_constraint: v.kl_constraint,
             }
         } else {
             let m = &self.mpo;
@@ -81,6 +101,7 @@ impl LearnerConfig {
                 discount: m.discount,
                 target_update_period: m.target_update_period,
                 grad_clip_norm: m.grad_clip_norm,
+                kl_constraint: m.kl_constraint,
             }
         }
     }

@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{ConfigError, check, finite_pos, non_negative};
+use super::{ConfigError, KlConstraint, check, finite_pos, non_negative};
 
 /// On-policy learner and unroll settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -18,10 +18,16 @@ pub struct VmpoConfig {
     /// D.2.1 "top-k advantages": the fraction of the batch's advantages kept per
     /// objective, 0.5 (Song et al. 2020).
     pub top_k_fraction: f64,
-    /// Table 5 "KL-constraint on policy mean" beta_mu 0.1 (summed over action dims).
+    /// Table 5 "KL-constraint on policy mean" beta_mu 0.1 (on the KL summed over
+    /// action dims, or on each dim's KL with `kl_constraint = "per_dimension"`).
     pub beta_mean: f64,
     /// Table 5 "KL-constraint on policy covariance" beta_Sigma 1e-5.
     pub beta_cov: f64,
+    /// `"summed"` (default, eq. 25 as written: the KL of the whole Gaussian) or
+    /// `"per_dimension"` (each action dimension's KL bounded by beta, D multipliers
+    /// each, as Acme's `per_dim_constraining`); see `mpo.kl_constraint`. The preset
+    /// keeps the default. No effect on categorical policies.
+    pub kl_constraint: KlConstraint,
     /// KL bound of a categorical policy. Not in the paper (its V-MPO runs are all
     /// Gaussian); 0.01, V-MPO's epsilon_alpha for discrete actions (Song et al. 2020).
     pub beta_categorical: f64,
@@ -57,6 +63,7 @@ impl Default for VmpoConfig {
             top_k_fraction: 0.5,
             beta_mean: 0.1,
             beta_cov: 1e-5,
+            kl_constraint: KlConstraint::Summed,
             beta_categorical: 0.01,
             init_temperature: 1.0,
             init_alpha_mean: 1.0,

@@ -17,7 +17,7 @@ pub use dims::{ActionBounds, LearnerDims, ObsLeaf, ObsSplit};
 pub use policy::{
     ActOutput, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
 };
-pub use snapshot::{ActorPolicy, NamedArray, PolicySnapshot};
+pub use snapshot::{ActorPolicy, NamedArray, PolicySnapshot, SnapshotError};
 pub use value::ValueNet;
 
 /// The action space as the networks see it.

@@ -38,7 +38,16 @@ impl GaussianParams {
     /// Draws `m` actions per state. # Shapes `-> [M, B, D]`.
     pub fn sample(&self, m: i64) -> Tensor {
         let size = [&[m][..], &self.mean.size()[..]].concat();
-        let noise = Tensor::randn(size.as_slice(), (self.mean.kind(), self.mean.device()));
+        self.sample_from(&Tensor::randn(
+            size.as_slice(),
+            (self.mean.kind(), self.mean.device()),
+        ))
+    }
+
+    /// The actions `mean + std * noise` for standard-normal `noise`.
+    /// # Shapes
+    /// `noise [M, B, D] -> [M, B, D]`.
+    pub fn sample_from(&self, noise: &Tensor) -> Tensor {
         &self.mean + noise * &self.std
     }
 

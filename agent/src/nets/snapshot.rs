@@ -1,5 +1,6 @@
 //! Publishing the learner's policy to actors: a plain, engine-free copy of the policy
-//! parameters (`PolicySnapshot`) and a CPU-side `ActorPolicy` that loads it.
+//! parameters (`PolicySnapshot`) and a CPU-side `ActorPolicy` that loads it. The same
+//! named arrays carry any network's parameters in and out (`named_arrays`, `load_named`).
 
 use super::LearnerDims;
 use super::policy::{ActOutput, Policy};
@@ -24,11 +25,11 @@ pub struct PolicySnapshot {
     pub tensors: Vec<NamedArray>,
 }
 
-/// A snapshot that does not fit the receiving policy.
+/// Parameters that do not fit the receiving network.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SnapshotError {
     /// Parameter names differ.
-    #[error("policy snapshot names differ: missing {missing:?}, unexpected {unexpected:?}")]
+    #[error("parameter names differ: missing {missing:?}, unexpected {unexpected:?}")]
     Names {
         /// Expected by the receiver but absent from the snapshot.
         missing: Vec<String>,
@@ -36,9 +37,7 @@ pub enum SnapshotError {
         unexpected: Vec<String>,
     },
     /// A parameter has the wrong shape or data length.
-    #[error(
-        "policy snapshot tensor {name}: expected shape {expected:?}, got {got:?} with {len} values"
-    )]
+    #[error("parameter {name}: expected shape {expected:?}, got {got:?} with {len} values")]
     Shape {
         /// Parameter name.
         name: String,
@@ -54,65 +53,77 @@ pub enum SnapshotError {
 impl PolicySnapshot {
     /// Copies every variable of `vs` to host memory.
     pub fn from_var_store(vs: &nn::VarStore) -> Self {
-        let mut tensors: Vec<NamedArray> = vs
-            .variables()
-            .into_iter()
-            .map(|(name, t)| {
-                let t = t
-                    .detach()
-                    .to_device(Device::Cpu)
-                    .to_kind(Kind::Float)
-                    .contiguous();
-                let data = Vec::<f32>::try_from(&t.flatten(0, -1)).expect("f32 tensor converts");
-                NamedArray {
-                    name,
-                    shape: t.size(),
-                    data,
-                }
-            })
-            .collect();
-        tensors.sort_by(|a, b| a.name.cmp(&b.name));
-        Self { tensors }
+        Self {
+            tensors: named_arrays(vs),
+        }
     }
 
     /// Overwrites the variables of `vs` (same names and shapes required).
     pub fn load_into(&self, vs: &nn::VarStore) -> Result<(), SnapshotError> {
-        let vars = vs.variables();
-        let missing: Vec<String> = vars
-            .keys()
-            .filter(|k| !self.tensors.iter().any(|t| &t.name == *k))
-            .cloned()
-            .collect();
-        let unexpected: Vec<String> = self
-            .tensors
-            .iter()
-            .filter(|t| !vars.contains_key(&t.name))
-            .map(|t| t.name.clone())
-            .collect();
-        if !missing.is_empty() || !unexpected.is_empty() {
-            return Err(SnapshotError::Names {
-                missing,
-                unexpected,
+        load_named(&self.tensors, vs)
+    }
+}
+
+/// Every variable of `vs` as host data, sorted by name.
+pub fn named_arrays(vs: &nn::VarStore) -> Vec<NamedArray> {
+    let mut tensors: Vec<NamedArray> = vs
+        .variables()
+        .into_iter()
+        .map(|(name, t)| {
+            let t = t
+                .detach()
+                .to_device(Device::Cpu)
+                .to_kind(Kind::Float)
+                .contiguous();
+            let data = Vec::<f32>::try_from(&t.flatten(0, -1)).expect("f32 tensor converts");
+            NamedArray {
+                name,
+                shape: t.size(),
+                data,
+            }
+        })
+        .collect();
+    tensors.sort_by(|a, b| a.name.cmp(&b.name));
+    tensors
+}
+
+/// Overwrites the variables of `vs` with `tensors`: exactly the same names, and the
+/// same shapes.
+pub fn load_named(tensors: &[NamedArray], vs: &nn::VarStore) -> Result<(), SnapshotError> {
+    let vars = vs.variables();
+    let missing: Vec<String> = vars
+        .keys()
+        .filter(|k| !tensors.iter().any(|t| &t.name == *k))
+        .cloned()
+        .collect();
+    let unexpected: Vec<String> = tensors
+        .iter()
+        .filter(|t| !vars.contains_key(&t.name))
+        .map(|t| t.name.clone())
+        .collect();
+    if !missing.is_empty() || !unexpected.is_empty() {
+        return Err(SnapshotError::Names {
+            missing,
+            unexpected,
+        });
+    }
+    for t in tensors {
+        let mut var = vars[&t.name].shallow_clone();
+        let numel: i64 = t.shape.iter().product();
+        if var.size() != t.shape || numel as usize != t.data.len() {
+            return Err(SnapshotError::Shape {
+                name: t.name.clone(),
+                expected: var.size(),
+                got: t.shape.clone(),
+                len: t.data.len(),
             });
         }
-        for t in &self.tensors {
-            let mut var = vars[&t.name].shallow_clone();
-            let numel: i64 = t.shape.iter().product();
-            if var.size() != t.shape || numel as usize != t.data.len() {
-                return Err(SnapshotError::Shape {
-                    name: t.name.clone(),
-                    expected: var.size(),
-                    got: t.shape.clone(),
-                    len: t.data.len(),
-                });
-            }
-            let src = Tensor::from_slice(&t.data)
-                .reshape(t.shape.as_slice())
-                .to_device(var.device());
-            tch::no_grad(|| var.copy_(&src));
-        }
-        Ok(())
+        let src = Tensor::from_slice(&t.data)
+            .reshape(t.shape.as_slice())
+            .to_device(var.device());
+        tch::no_grad(|| var.copy_(&src));
     }
+    Ok(())
 }
 
 /// A policy copy for actors (no gradients), fed by `PolicySnapshot`s.

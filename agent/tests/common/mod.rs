@@ -121,6 +121,11 @@ pub fn random_batch(learner: &Learner, seed: i64) -> SnippetBatch {
 
 /// MO-V-MPO with A.3's mocap torso (reference leaf, latent) and two learned objectives.
 pub fn movmpo_mocap_learner() -> Learner {
+    movmpo_mocap_learner_with(|_| {})
+}
+
+/// `movmpo_mocap_learner` with config changes (applied last).
+pub fn movmpo_mocap_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> Learner {
     let mut cfg = small_config();
     cfg.algorithm = Algorithm::MoVmpo;
     cfg.objectives = ["task", "effort"]
@@ -140,6 +145,7 @@ pub fn movmpo_mocap_learner() -> Learner {
     cfg.vmpo.unroll_length = 4;
     cfg.vmpo.batch_size = 5;
     cfg.vmpo.target_update_period = 2;
+    change(&mut cfg);
     let dims = LearnerDims {
         action_bounds: None,
         obs_dim: OBS,

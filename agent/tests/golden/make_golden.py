@@ -1,8 +1,8 @@
 """Expected values for agent/tests/golden.rs, computed independently in PyTorch (float64).
 
 Run from the repo root:  .venv/bin/python agent/tests/golden/make_golden.py
-It rewrites agent/tests/golden/*.json. The formulas follow the paper (Abdolmaleki et al.
-2020, appendix C.2, C.3, D, E.1) directly, with explicit loops and torch.distributions
+It rewrites agent/tests/golden/*.json (the whole-step ones through make_golden_step.py).
+The formulas follow the paper (Abdolmaleki et al. 2020, appendix C.2, C.3, D, E.1) directly, with explicit loops and torch.distributions
 where possible, not the vectorised forms used by the Rust code.
 """
 
@@ -10,6 +10,7 @@ import json
 import math
 import pathlib
 
+import make_golden_step
 import torch
 
 torch.set_default_dtype(torch.float64)
@@ -156,6 +157,48 @@ write(
         "alpha_loss": alpha_loss.item(),
         "grad_alpha_mean": alpha_mu.grad.item(),
         "grad_alpha_cov": alpha_sigma.grad.item(),
+        "grad_online_mean": t(mu_o.grad),
+        "grad_online_std": t(sd_o.grad),
+    },
+)
+
+# ---------------------------------------------------------------- Gaussian M-step, per dimension
+# Acme's per_dim_constraining: the same policies, samples and weights, but each action
+# dimension's KL (averaged over states) is bounded by beta on its own, with one alpha_mu
+# and one alpha_Sigma per dimension: sum_d sg(alpha_d) KL_d in the policy loss and
+# sum_d alpha_d (beta - sg(KL_d)) in the multipliers' loss.
+mu_o.grad, sd_o.grad = None, None
+alpha_mu_d = torch.tensor([1.3, 0.4, 2.0], requires_grad=True)
+alpha_sigma_d = torch.tensor([10.0, 3.0, 0.5], requires_grad=True)
+nll = -(w * (N(mu_o, sd_t).log_prob(actions).sum(-1) + N(mu_t, sd_o).log_prob(actions).sum(-1))).sum(0).mean()
+kl_mu_d = torch.distributions.kl_divergence(N(mu_t, sd_t), N(mu_o, sd_t)).mean(0)  # [D]
+kl_sigma_d = torch.distributions.kl_divergence(N(mu_t, sd_t), N(mu_t, sd_o)).mean(0)  # [D]
+policy_loss = nll
+alpha_loss = 0.0
+for d in range(3):
+    policy_loss = policy_loss + alpha_mu_d[d].detach() * kl_mu_d[d] + alpha_sigma_d[d].detach() * kl_sigma_d[d]
+    alpha_loss = alpha_loss + alpha_mu_d[d] * (beta_mu - kl_mu_d[d].detach())
+    alpha_loss = alpha_loss + alpha_sigma_d[d] * (beta_sigma - kl_sigma_d[d].detach())
+(policy_loss + alpha_loss).backward()
+write(
+    "mstep_gaussian_per_dimension",
+    {
+        "online_mean": t(mu_o),
+        "online_std": t(sd_o),
+        "target_mean": t(mu_t),
+        "target_std": t(sd_t),
+        "actions": t(actions),
+        "weights": t(w),
+        "alpha_mean": alpha_mu_d.tolist(),
+        "alpha_cov": alpha_sigma_d.tolist(),
+        "beta_mean": beta_mu,
+        "beta_cov": beta_sigma,
+        "kl_mean": kl_mu_d.tolist(),
+        "kl_cov": kl_sigma_d.tolist(),
+        "policy_loss": policy_loss.item(),
+        "alpha_loss": alpha_loss.item(),
+        "grad_alpha_mean": alpha_mu_d.grad.tolist(),
+        "grad_alpha_cov": alpha_sigma_d.grad.tolist(),
         "grad_online_mean": t(mu_o.grad),
         "grad_online_std": t(sd_o.grad),
     },
@@ -409,4 +452,5 @@ write(
         "grad_online_std": t(os_.grad),
     },
 )
+make_golden_step.main()
 print("wrote", sorted(p.name for p in OUT.glob("*.json")))
