@@ -1,7 +1,8 @@
 //! Positive Lagrange multipliers: the temperatures eta_k of the E-step (eq. 34) and the
 //! trust-region multipliers alpha of the M-step (eqs. 17-20).
 //!
-//! Each multiplier is `softplus(param) + 1e-8`, the parameter gets one Adam step per
+//! Each multiplier is `softplus(param) + 1e-8` (the temperatures optionally
+//! `exp(param) + 1e-8`, `TemperatureParameterization::Log`), the parameter gets one Adam step per
 //! learner step (its own optimizer, dual learning rate, never gradient-clipped) and is
 //! floored at -18 *after* the update (eta >= ~2.5e-8), as in Acme's JAX learner: a
 //! clamp inside the loss would give a clamped dual zero gradient and it could never
@@ -13,6 +14,7 @@
 //! flat, part by part, so a summed Gaussian's parameter is `[2]` as it always was.
 
 use super::adam::{Adam, AdamConfig};
+use crate::config::TemperatureParameterization;
 use tch::{Device, Kind, Tensor};
 
 /// Added to softplus so a multiplier is never exactly 0.
@@ -32,6 +34,16 @@ pub fn inverse_positive(value: f64) -> f64 {
     x + (-(-x).exp_m1()).ln()
 }
 
+/// `exp(param) + 1e-8`, differentiable in `param`.
+pub fn positive_log(param: &Tensor) -> Tensor {
+    param.exp() + DUAL_OFFSET
+}
+
+/// The parameter whose `positive_log` is `value` (value > 1e-8).
+pub fn inverse_positive_log(value: f64) -> f64 {
+    (value - DUAL_OFFSET).ln()
+}
+
 fn host(t: &Tensor) -> Vec<f32> {
     Vec::<f32>::try_from(&t.detach().to_device(Device::Cpu).to_kind(Kind::Float))
         .unwrap_or_default()
@@ -47,21 +59,35 @@ pub struct Duals {
     pub alpha_param: Tensor,
     /// Number of trust-region parts (2 Gaussian, 1 categorical).
     alpha_parts: i64,
+    /// How `temperature_param` maps to eta.
+    temperature_kind: TemperatureParameterization,
     pub(crate) optimizer: Adam,
 }
 
 impl Duals {
     /// Multipliers starting at the given (positive) values; `alphas` has one slice per
     /// trust-region part, all of the same length P.
-    pub fn new(temperatures: &[f64], alphas: &[&[f64]], lr: f64, device: Device) -> Self {
-        let make = |values: &[f64]| {
-            let raw: Vec<f32> = values.iter().map(|&v| inverse_positive(v) as f32).collect();
+    pub fn new(
+        temperatures: &[f64],
+        alphas: &[&[f64]],
+        lr: f64,
+        temperature_kind: TemperatureParameterization,
+        device: Device,
+    ) -> Self {
+        let make = |values: &[f64], inverse: fn(f64) -> f64| {
+            let raw: Vec<f32> = values.iter().map(|&v| inverse(v) as f32).collect();
             Tensor::from_slice(&raw)
                 .to_device(device)
                 .set_requires_grad(true)
         };
-        let temperature_param = make(temperatures);
-        let alpha_param = make(&alphas.concat());
+        let temperature_param = make(
+            temperatures,
+            match temperature_kind {
+                TemperatureParameterization::Softplus => inverse_positive,
+                TemperatureParameterization::Log => inverse_positive_log,
+            },
+        );
+        let alpha_param = make(&alphas.concat(), inverse_positive);
         let params = vec![
             ("temperature".to_string(), temperature_param.shallow_clone()),
             ("alpha".to_string(), alpha_param.shallow_clone()),
@@ -72,13 +98,17 @@ impl Duals {
             temperature_param,
             alpha_param,
             alpha_parts: alphas.len() as i64,
+            temperature_kind,
             optimizer,
         }
     }
 
     /// eta_k, `[K]`, differentiable.
     pub fn temperature(&self) -> Tensor {
-        positive(&self.temperature_param)
+        match self.temperature_kind {
+            TemperatureParameterization::Softplus => positive(&self.temperature_param),
+            TemperatureParameterization::Log => positive_log(&self.temperature_param),
+        }
     }
 
     /// alpha values, `[parts, P]`, differentiable.
@@ -121,6 +151,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn log_temperatures_round_trip_and_step_relatively() {
+        for v in [1e-6, 0.1, 1.0, 10.0, 1000.0] {
+            let p = Tensor::from_slice(&[inverse_positive_log(v)]);
+            assert!((positive_log(&p).double_value(&[0]) - v).abs() < 1e-6 * v.max(1.0));
+        }
+        // One Adam step moves the parameter by about lr, so eta by a factor of about
+        // exp(lr) at any size: the same pull takes 1 -> e^0.1 and 100 -> 100 e^0.1.
+        for start in [1.0, 100.0] {
+            let mut duals = Duals::new(
+                &[start],
+                &[&[1.0]],
+                0.1,
+                TemperatureParameterization::Log,
+                Device::Cpu,
+            );
+            duals.zero_grad();
+            (-duals.temperature()).sum(Kind::Float).backward();
+            duals.step();
+            let ratio = duals.temperature().double_value(&[0]) / start;
+            assert!((ratio - 0.1f64.exp()).abs() < 1e-3, "{start}: {ratio}");
+        }
+    }
+
+    #[test]
     fn inverse_round_trips_and_floor_holds() {
         for v in [1e-6, 0.1, 1.0, 10.0, 1000.0] {
             let p = Tensor::from_slice(&[inverse_positive(v)]);
@@ -129,7 +183,13 @@ mod tests {
                 "{v}"
             );
         }
-        let mut duals = Duals::new(&[1e-7], &[&[1.0], &[1.0]], 10.0, Device::Cpu);
+        let mut duals = Duals::new(
+            &[1e-7],
+            &[&[1.0], &[1.0]],
+            10.0,
+            TemperatureParameterization::Softplus,
+            Device::Cpu,
+        );
         duals.zero_grad();
         // A huge push towards 0 lands on the floor, not below.
         (duals.temperature() * 1e6).sum(Kind::Float).backward();

@@ -197,6 +197,7 @@ impl Learner {
             &temperatures,
             &alpha_parts,
             settings.dual_learning_rate,
+            settings.temperature_parameterization,
             device,
         );
         let eps: Vec<f32> = bound.objectives.iter().map(|o| o.epsilon as f32).collect();

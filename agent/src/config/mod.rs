@@ -13,7 +13,7 @@ mod vmpo;
 
 pub use mpo::MpoConfig;
 pub use network::{Architecture, NetworkConfig};
-pub use shared::{KlConstraint, SharedSettings};
+pub use shared::{KlConstraint, SharedSettings, TemperatureParameterization};
 pub use vmpo::VmpoConfig;
 
 use serde::{Deserialize, Serialize};

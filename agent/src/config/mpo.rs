@@ -3,7 +3,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{ConfigError, KlConstraint, check, finite_pos, non_negative};
+use super::{
+    ConfigError, KlConstraint, TemperatureParameterization, check, finite_pos, non_negative,
+};
 
 /// MPO, policy-evaluation and training hyperparameters (Table 2 "MPO", "training").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -26,6 +28,11 @@ pub struct MpoConfig {
     /// Every preset in `configs/` keeps the default (the paper's equation). No effect
     /// on categorical policies.
     pub kl_constraint: KlConstraint,
+    /// How eta_k is parameterized for its Adam steps: `"softplus"` (default, Acme's
+    /// eta = softplus(p)) or `"log"` (eta = exp(p)), whose steps are relative, so that
+    /// eta catches up with a rescaled reward in about log(scale) / dual learning rate
+    /// steps instead of about scale times more (README, "Reward scale").
+    pub temperature_parameterization: TemperatureParameterization,
     /// A.2: KL constraint beta of the categorical policy (Deep Sea Treasure), 1e-3.
     pub beta_categorical: f64,
     /// Table 2 "initial temperature eta" 1 (the value of eta, not of its parameter).
@@ -67,6 +74,7 @@ impl Default for MpoConfig {
             beta_mean: 1e-3,
             beta_cov: 1e-5,
             kl_constraint: KlConstraint::Summed,
+            temperature_parameterization: TemperatureParameterization::Softplus,
             beta_categorical: 1e-3,
             init_temperature: 1.0,
             init_alpha_mean: 1.0,

@@ -21,6 +21,21 @@ pub enum KlConstraint {
     PerDimension,
 }
 
+/// How the temperatures eta_k are parameterized for their Adam steps (`dual.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TemperatureParameterization {
+    /// eta = softplus(p) + 1e-8, as Acme. One Adam step moves p, and so eta, by about
+    /// one dual learning rate: a reward k times larger needs about k times more steps
+    /// before eta has grown to match it, so preferences hold only at the fixed point.
+    #[default]
+    Softplus,
+    /// eta = exp(p) + 1e-8: one Adam step changes eta by a factor of about
+    /// exp(dual learning rate), whatever its size, so the lag after a reward is
+    /// rescaled grows only with the log of the scale.
+    Log,
+}
+
 /// The hyperparameters both algorithm families have, read from `mpo` (MO-MPO,
 /// scalarized MPO) or `vmpo` (MO-V-MPO, scalarized V-MPO), so that the shared
 /// machinery (optimizers, duals, trust region, targets, batching) has one source.
@@ -58,6 +73,8 @@ pub struct SharedSettings {
     pub grad_clip_norm: Option<f64>,
     /// Summed or per-dimension Gaussian trust region.
     pub kl_constraint: KlConstraint,
+    /// How the temperatures are parameterized.
+    pub temperature_parameterization: TemperatureParameterization,
 }
 
 impl LearnerConfig {
@@ -82,6 +99,7 @@ impl LearnerConfig {
                 target_update_period: v.target_update_period,
                 grad_clip_norm: v.grad_clip_norm,
                 kl_constraint: v.kl_constraint,
+                temperature_parameterization: v.temperature_parameterization,
             }
         } else {
             let m = &self.mpo;
@@ -102,6 +120,7 @@ impl LearnerConfig {
                 target_update_period: m.target_update_period,
                 grad_clip_norm: m.grad_clip_norm,
                 kl_constraint: m.kl_constraint,
+                temperature_parameterization: m.temperature_parameterization,
             }
         }
     }

@@ -4,7 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{ConfigError, KlConstraint, check, finite_pos, non_negative};
+use super::{
+    ConfigError, KlConstraint, TemperatureParameterization, check, finite_pos, non_negative,
+};
 
 /// On-policy learner and unroll settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -28,6 +30,11 @@ pub struct VmpoConfig {
     /// each, as Acme's `per_dim_constraining`); see `mpo.kl_constraint`. The preset
     /// keeps the default. No effect on categorical policies.
     pub kl_constraint: KlConstraint,
+    /// How eta_k is parameterized for its Adam steps: `"softplus"` (default, Acme's
+    /// eta = softplus(p)) or `"log"` (eta = exp(p)), whose steps are relative, so that
+    /// eta catches up with a rescaled reward in about log(scale) / dual learning rate
+    /// steps instead of about scale times more (README, "Reward scale").
+    pub temperature_parameterization: TemperatureParameterization,
     /// KL bound of a categorical policy. Not in the paper (its V-MPO runs are all
     /// Gaussian); 0.01, V-MPO's epsilon_alpha for discrete actions (Song et al. 2020).
     pub beta_categorical: f64,
@@ -64,6 +71,7 @@ impl Default for VmpoConfig {
             beta_mean: 0.1,
             beta_cov: 1e-5,
             kl_constraint: KlConstraint::Summed,
+            temperature_parameterization: TemperatureParameterization::Softplus,
             beta_categorical: 0.01,
             init_temperature: 1.0,
             init_alpha_mean: 1.0,
