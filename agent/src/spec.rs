@@ -110,6 +110,14 @@ pub struct ObjectiveSpec {
     pub min: f64,
     /// Largest per-step reward (may be +inf).
     pub max: f64,
+    /// What the server multiplies this reward by (Make kwarg `reward_scale`, e.g.
+    /// `[env.kwargs] reward_scale = { task = 10.0 }`); `min` and `max` include it.
+    #[serde(default = "unscaled")]
+    pub scale: f64,
+}
+
+fn unscaled() -> f64 {
+    1.0
 }
 
 /// What the server does when an instance's episode ends inside `step`.

@@ -100,7 +100,8 @@ def _space_spec(space: pb.Space) -> dict[str, Any]:
 
 
 def _objectives(specs: Sequence[pb.ObjectiveSpec]) -> tuple[Objective, ...]:
-    return tuple(Objective(o.name, o.description, o.min, o.max) for o in specs)
+    # A scale of 0 comes from servers older than the field: nothing was scaled.
+    return tuple(Objective(o.name, o.description, o.min, o.max, o.scale or 1.0) for o in specs)
 
 
 def _tree(named: Sequence[pb.NamedTensor]) -> Any:

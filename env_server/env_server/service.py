@@ -56,6 +56,7 @@ CAPABILITIES = (
     "instance_workers",
     "close_session",
     "render",
+    "reward_scale",
 )
 # The transports server.py can serve this service through (`--front`).
 FRONTS = ("auto", "native", "grpcio")

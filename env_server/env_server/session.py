@@ -120,6 +120,40 @@ def _info_array(value: Any) -> np.ndarray:
     raise TypeError(f"info value of dtype {arr.dtype} is not numeric")
 
 
+#: The Make kwarg every env accepts: {objective name: factor}, applied by the session.
+REWARD_SCALE = "reward_scale"
+
+
+def check_reward_scale(value: Any) -> dict[str, float]:
+    """`kwargs_json.reward_scale` as {name: factor}: a JSON object of finite numbers > 0
+    (the names are checked against the env's objectives once it is built)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise InvalidArgument(
+            f"kwargs_json.{REWARD_SCALE}: expected an object {{objective name: factor}}, got {quote(value)}"
+        )
+    factors = {}
+    for name, factor in value.items():
+        number = isinstance(factor, (int, float)) and not isinstance(factor, bool)
+        if not (number and math.isfinite(factor) and factor > 0):
+            raise InvalidArgument(
+                f"kwargs_json.{REWARD_SCALE}.{quote(name)}: expected a finite number > 0, got {quote(factor)}"
+            )
+        factors[name] = float(factor)
+    return factors
+
+
+def _scaled(objective: Objective, factor: float) -> Objective:
+    return dataclasses.replace(
+        objective,
+        min=objective.min * factor,
+        max=objective.max * factor,
+        description=f"{objective.description} (reward x{factor:g})",
+        scale=factor,
+    )
+
+
 class Session:
     """B instances of one Task, stepped together."""
 
@@ -133,13 +167,26 @@ class Session:
         discount: float = DEFAULT_DISCOUNT,
         info_keys: Sequence[str] = (),
         session_id: str | None = None,
+        reward_scale: Mapping[str, float] | None = None,
     ) -> None:
         self.id = session_id or uuid.uuid4().hex
         self.env_id = env_id
         self._instances = instances
         first = instances.info
         b = instances.num_envs
-        self.objectives: tuple[Objective, ...] = tuple(first.objectives)
+        reward_scale = dict(reward_scale or {})
+        names = [o.name for o in first.objectives]
+        unknown = sorted(set(reward_scale) - set(names))
+        if unknown:
+            raise InvalidArgument(
+                f"kwargs_json.{REWARD_SCALE}: expected objective names of {env_id}, one of {names}, "
+                f"got {quote(unknown)}"
+            )
+        self.objectives: tuple[Objective, ...] = tuple(
+            _scaled(o, reward_scale[o.name]) if o.name in reward_scale else o for o in first.objectives
+        )
+        # None when nothing is scaled: the hot path then skips the multiply.
+        self._scale = np.array([o.scale for o in self.objectives], np.float32) if reward_scale else None
         self._k = len(self.objectives)
         max_steps = first.max_episode_steps or 0
         self.spec = SessionSpec(
@@ -348,6 +395,8 @@ class Session:
             self._write_obs(i, out.observation, self._obs)
             if self._info_keys:
                 self._collect_info(i, out.info)
+        if self._scale is not None:
+            reward *= self._scale
 
         if next_step_reset:
             self._account(live)
@@ -488,6 +537,8 @@ def make_session(
     discount = DEFAULT_DISCOUNT if discount is None else float(discount)
     if not (math.isfinite(discount) and 0.0 <= discount <= 1.0):
         raise InvalidArgument(f"discount: expected 0 <= discount <= 1, got {discount}")
+    kwargs = dict(kwargs)
+    reward_scale = check_reward_scale(kwargs.pop(REWARD_SCALE, None))
     instances = build_instances(entry, kwargs, num_envs, num_workers, info_keys, cancel)
     try:
         return Session(
@@ -498,6 +549,7 @@ def make_session(
             discount=discount,
             info_keys=info_keys,
             session_id=session_id,
+            reward_scale=reward_scale,
         )
     except BaseException:
         instances.close()

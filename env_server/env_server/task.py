@@ -27,6 +27,9 @@ class Objective:
     description: str
     min: float = -math.inf
     max: float = math.inf
+    #: What the session multiplies this reward by (Make kwarg `reward_scale`); min and
+    #: max are already scaled.
+    scale: float = 1.0
 
 
 @dataclasses.dataclass

@@ -54,7 +54,10 @@ def space_to_pb(spec: dict[str, Any]) -> pb.Space:
 
 
 def objectives_pb(objectives: tuple[Objective, ...]) -> list[pb.ObjectiveSpec]:
-    return [pb.ObjectiveSpec(name=o.name, description=o.description, min=o.min, max=o.max) for o in objectives]
+    return [
+        pb.ObjectiveSpec(name=o.name, description=o.description, min=o.min, max=o.max, scale=o.scale)
+        for o in objectives
+    ]
 
 
 def spec_pb(session: Session) -> pb.EnvSpec:

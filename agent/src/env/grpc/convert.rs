@@ -160,6 +160,8 @@ pub(super) fn objective_from_proto(o: pb::ObjectiveSpec) -> ObjectiveSpec {
         description: o.description,
         min: o.min,
         max: o.max,
+        // Servers older than the field send 0: nothing was scaled.
+        scale: if o.scale == 0.0 { 1.0 } else { o.scale },
     }
 }
 

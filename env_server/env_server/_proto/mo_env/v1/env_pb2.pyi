@@ -98,16 +98,18 @@ class Space(_message.Message):
     def __init__(self, box: _Optional[_Union[BoxSpace, _Mapping]] = ..., discrete: _Optional[_Union[DiscreteSpace, _Mapping]] = ..., dict: _Optional[_Union[DictSpace, _Mapping]] = ...) -> None: ...
 
 class ObjectiveSpec(_message.Message):
-    __slots__ = ("name", "description", "min", "max")
+    __slots__ = ("name", "description", "min", "max", "scale")
     NAME_FIELD_NUMBER: _ClassVar[int]
     DESCRIPTION_FIELD_NUMBER: _ClassVar[int]
     MIN_FIELD_NUMBER: _ClassVar[int]
     MAX_FIELD_NUMBER: _ClassVar[int]
+    SCALE_FIELD_NUMBER: _ClassVar[int]
     name: str
     description: str
     min: float
     max: float
-    def __init__(self, name: _Optional[str] = ..., description: _Optional[str] = ..., min: _Optional[float] = ..., max: _Optional[float] = ...) -> None: ...
+    scale: float
+    def __init__(self, name: _Optional[str] = ..., description: _Optional[str] = ..., min: _Optional[float] = ..., max: _Optional[float] = ..., scale: _Optional[float] = ...) -> None: ...
 
 class EnvSpec(_message.Message):
     __slots__ = ("env_id", "num_envs", "observation_space", "action_space", "objectives", "max_episode_steps", "autoreset_mode", "discount", "info_keys")
