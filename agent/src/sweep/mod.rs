@@ -123,6 +123,10 @@ pub struct SweepConfig {
     /// Optional ε-ratio plot.
     #[serde(default)]
     pub ratio_plot: Option<RatioPlot>,
+    /// Overrides of the base config, `dotted.path=value` as `agent train --set`
+    /// (e.g. `"env.kwargs.reward_scale.task=10.0"`), applied before the grid.
+    #[serde(default)]
+    pub set: Vec<String>,
     /// A known Pareto front (e.g. Deep Sea Treasure's ten treasures), objective name ->
     /// values, entry i of every list being point i: drawn on the front and ratio plots,
     /// and the sweep reports its hypervolume and the IGD of the found front to it.
@@ -206,7 +210,7 @@ impl SweepConfig {
             )
         })?;
         let base_path = path.parent().unwrap_or(Path::new(".")).join(&sweep.base);
-        let base = TrainConfig::load(&base_path)?;
+        let base = TrainConfig::load_with(&base_path, &sweep.set)?;
         sweep.validate(&base)?;
         Ok((sweep, base))
     }
