@@ -3,30 +3,16 @@
 //! events that TensorBoard's own reader accepts), and the run finishes where an
 //! uninterrupted one would. Runs the real CLI binary against a real env_server.
 
+mod cli;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
 use agent::learner::latest_checkpoint;
-
-fn agent_cmd(args: &[&str]) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_agent"));
-    c.args(args)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null());
-    c
-}
-
-fn run_dir_in(runs: &Path) -> Option<PathBuf> {
-    std::fs::read_dir(runs)
-        .ok()?
-        .filter_map(|e| e.ok())
-        .map(|e| e.path())
-        .find(|p| p.is_dir())
-}
+use cli::{agent_cmd, run_dir_in, smoke_dst};
 
 /// Wait until the run in `runs` has a checkpoint past `learner_steps`, then send `signal`.
 fn signal_after(child: &mut Child, runs: &Path, learner_steps: u64, signal: i32) -> PathBuf {
@@ -74,13 +60,7 @@ fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {
 async fn an_interrupted_run_still_reports_and_resumes_to_the_end() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let runs = dir.path().join("runs");
-    let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
-    let text = std::fs::read_to_string(smoke)
-        .unwrap()
-        .replace("[run]\n", &format!("[run]\nruns_dir = {runs:?}\n"));
-    let config = dir.path().join("dst.toml");
-    std::fs::write(&config, text).unwrap();
+    let (runs, config) = smoke_dst(dir.path());
     let address = server.address().to_string();
 
     // 1. SIGTERM (what a scheduler or `kill` sends).

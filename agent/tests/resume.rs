@@ -2,41 +2,19 @@
 //! checkpoint with its step counters, duals and optimizer state; nothing is lost.
 //! Runs the real CLI binary against a real env_server.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+mod cli;
+
 use std::time::{Duration, Instant};
 
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::learner::latest_checkpoint;
-
-fn agent_cmd(args: &[&str]) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_agent"));
-    c.args(args)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null());
-    c
-}
-
-fn run_dir_in(runs: &Path) -> Option<PathBuf> {
-    std::fs::read_dir(runs)
-        .ok()?
-        .filter_map(|e| e.ok())
-        .map(|e| e.path())
-        .find(|p| p.is_dir())
-}
+use cli::{agent_cmd, run_dir_in, smoke_dst};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn kill_9_then_resume_continues_from_the_last_checkpoint() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let runs = dir.path().join("runs");
-    let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
-    let text = std::fs::read_to_string(smoke)
-        .unwrap()
-        .replace("[run]\n", &format!("[run]\nruns_dir = {runs:?}\n"));
-    let config = dir.path().join("dst.toml");
-    std::fs::write(&config, text).unwrap();
+    let (runs, config) = smoke_dst(dir.path());
 
     let mut child = agent_cmd(&[
         "train",
