@@ -12,7 +12,6 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use tch::Device;
 use tokio::sync::watch;
@@ -30,13 +29,19 @@ use crate::eval::{evaluate, evaluate_recorded};
 use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::{ActionKind, ActorPolicy};
-use crate::plot::{Figure, PlotError, Series, SeriesKind};
+use crate::plot::PlotError;
 use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Pace, Schedule};
 use crate::solve::{SolveRecord, SolveTracker};
 use crate::spec::EnvSpec;
 use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
+
+mod curves;
+mod progress;
+
+use curves::plot_curves;
+use progress::{interrupt_signal, progress_bar, progress_message};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -398,37 +403,6 @@ pub async fn train(
     Ok(summary)
 }
 
-/// Resolves on the first Ctrl-C (SIGINT) or SIGTERM, with its name.
-async fn interrupt_signal() -> &'static str {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        match signal(SignalKind::terminate()) {
-            Ok(mut term) => tokio::select! {
-                name = ctrl_c() => name,
-                _ = term.recv() => "SIGTERM",
-            },
-            Err(e) => {
-                tracing::warn!("cannot listen for SIGTERM ({e}); only Ctrl-C stops the run early");
-                ctrl_c().await
-            }
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        ctrl_c().await
-    }
-}
-
-/// Resolves on Ctrl-C; never, when the handler cannot be installed.
-async fn ctrl_c() -> &'static str {
-    if let Err(e) = tokio::signal::ctrl_c().await {
-        tracing::warn!("cannot listen for Ctrl-C ({e})");
-        std::future::pending::<()>().await;
-    }
-    "Ctrl-C"
-}
-
 pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
     let rows: Vec<&Vec<f64>> = rows.collect();
     let k = rows.first().map_or(0, |r| r.len());
@@ -492,102 +466,4 @@ fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
     cfg.run
         .runs_dir
         .join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
-}
-
-fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> ProgressBar {
-    if !enabled {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(cfg.run.total_env_steps).with_style(
-        ProgressStyle::with_template(
-            "{bar:30} {pos:>8}/{len} env steps [{elapsed_precise}<{eta}] {msg}",
-        )
-        .expect("valid template"),
-    );
-    bar.set_position(schedule.counters().env_steps);
-    bar
-}
-
-fn progress_message(
-    c: &Counters,
-    names: &[String],
-    stats: Option<&crate::algo::LearnerStats>,
-) -> String {
-    let fmt = |v: &[f64]| {
-        v.iter()
-            .map(|x| format!("{x:.2}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let mut msg = format!(
-        "learner {} | ep {} | return [{}]=[{}]",
-        c.learner_steps,
-        c.episodes,
-        names.join(", "),
-        fmt(&c.recent_mean_return())
-    );
-    if let Some(s) = stats {
-        let eta: Vec<f64> = s.temperature.iter().map(|&x| f64::from(x)).collect();
-        let kl: Vec<f64> = s.policy_kl.iter().map(|&x| f64::from(x)).collect();
-        msg.push_str(&format!(
-            " | eta [{}] | KL [{}]",
-            fmt(&eta),
-            kl.iter()
-                .map(|x| format!("{x:.1e}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ));
-    }
-    msg
-}
-
-/// Learning curves from `episodes.csv`: per objective, the running mean (20 episodes)
-/// of the undiscounted return against env steps.
-fn plot_curves(run_dir: &Path, objectives: &[String]) -> Result<(), TrainError> {
-    let path = run_dir.join("episodes.csv");
-    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
-    let rows: Vec<Vec<f64>> = text
-        .lines()
-        .skip(1)
-        .map(|l| {
-            l.split(',')
-                .map(|v| v.parse::<f64>().unwrap_or(f64::NAN))
-                .collect()
-        })
-        .collect();
-    let mut series = Vec::new();
-    for (k, name) in objectives.iter().enumerate() {
-        let mut points = Vec::new();
-        let mut window: std::collections::VecDeque<f64> = Default::default();
-        for r in &rows {
-            window.push_back(r[4 + k]);
-            if window.len() > 20 {
-                window.pop_front();
-            }
-            points.push((r[0], window.iter().sum::<f64>() / window.len() as f64));
-        }
-        series.push(Series {
-            label: name.clone(),
-            points,
-            kind: SeriesKind::Line,
-        });
-    }
-    if rows.is_empty() {
-        return Ok(());
-    }
-    let figure = Figure {
-        title: format!(
-            "training returns ({})",
-            run_dir
-                .file_name()
-                .map(|n| n.to_string_lossy())
-                .unwrap_or_default()
-        ),
-        x_label: "env steps".into(),
-        y_label: "episode return (mean of 20)".into(),
-        series,
-        log_x: false,
-    };
-    crate::plot::save(&figure, &run_dir.join("curves"))?;
-    Ok(())
 }

@@ -1,0 +1,85 @@
+//! What a user sees and does while a run trains: the progress bar and its message,
+//! and the signals (Ctrl-C, SIGTERM) that end a run early with its report.
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::run_config::TrainConfig;
+use crate::schedule::{Counters, Schedule};
+
+/// Resolves on the first Ctrl-C (SIGINT) or SIGTERM, with its name.
+pub(super) async fn interrupt_signal() -> &'static str {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => tokio::select! {
+                name = ctrl_c() => name,
+                _ = term.recv() => "SIGTERM",
+            },
+            Err(e) => {
+                tracing::warn!("cannot listen for SIGTERM ({e}); only Ctrl-C stops the run early");
+                ctrl_c().await
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        ctrl_c().await
+    }
+}
+
+/// Resolves on Ctrl-C; never, when the handler cannot be installed.
+async fn ctrl_c() -> &'static str {
+    if let Err(e) = tokio::signal::ctrl_c().await {
+        tracing::warn!("cannot listen for Ctrl-C ({e})");
+        std::future::pending::<()>().await;
+    }
+    "Ctrl-C"
+}
+
+pub(super) fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(cfg.run.total_env_steps).with_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos:>8}/{len} env steps [{elapsed_precise}<{eta}] {msg}",
+        )
+        .expect("valid template"),
+    );
+    bar.set_position(schedule.counters().env_steps);
+    bar
+}
+
+pub(super) fn progress_message(
+    c: &Counters,
+    names: &[String],
+    stats: Option<&crate::algo::LearnerStats>,
+) -> String {
+    let fmt = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.2}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut msg = format!(
+        "learner {} | ep {} | return [{}]=[{}]",
+        c.learner_steps,
+        c.episodes,
+        names.join(", "),
+        fmt(&c.recent_mean_return())
+    );
+    if let Some(s) = stats {
+        let eta: Vec<f64> = s.temperature.iter().map(|&x| f64::from(x)).collect();
+        let kl: Vec<f64> = s.policy_kl.iter().map(|&x| f64::from(x)).collect();
+        msg.push_str(&format!(
+            " | eta [{}] | KL [{}]",
+            fmt(&eta),
+            kl.iter()
+                .map(|x| format!("{x:.1e}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    msg
+}
