@@ -18,6 +18,8 @@ from typing import Any, ClassVar
 import gymnasium
 import numpy as np
 
+from env_server.errors import FailedPrecondition
+
 
 @dataclasses.dataclass(frozen=True)
 class Objective:
@@ -79,11 +81,12 @@ class Task(abc.ABC):
         """The current frame as uint8 [height, width, 3] RGB, top row first.
 
         `camera` is "" (a view that shows the task) or one of `cameras`; the server has
-        checked it and the size. A Task that cannot render leaves this as it is, and
-        Render on it is FAILED_PRECONDITION. Renderers that need OpenGL call
+        checked it and the size. A Task without frames does not override this, and
+        Render on it is FAILED_PRECONDITION (the session checks before calling; this
+        answer is for direct callers). Renderers that need OpenGL call
         `env_server.gl.require()` first, so a server without it says what to install.
         """
-        raise NotImplementedError
+        raise FailedPrecondition(f"task {type(self).__name__} has no renderer (Task.render)")
 
     def close(self) -> None:
         """Release simulator resources."""
