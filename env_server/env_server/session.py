@@ -30,6 +30,7 @@ from env_server import spaces
 from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError, quote
 from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, RenderBatch, build_instances
 from env_server.registry import EnvEntry
+from env_server.reward_scale import REWARD_SCALE, check_reward_scale, scaled
 from env_server.task import Objective, Task
 
 log = logging.getLogger(__name__)
@@ -120,40 +121,6 @@ def _info_array(value: Any) -> np.ndarray:
     raise TypeError(f"info value of dtype {arr.dtype} is not numeric")
 
 
-#: The Make kwarg every env accepts: {objective name: factor}, applied by the session.
-REWARD_SCALE = "reward_scale"
-
-
-def check_reward_scale(value: Any) -> dict[str, float]:
-    """`kwargs_json.reward_scale` as {name: factor}: a JSON object of finite numbers > 0
-    (the names are checked against the env's objectives once it is built)."""
-    if value is None:
-        return {}
-    if not isinstance(value, dict):
-        raise InvalidArgument(
-            f"kwargs_json.{REWARD_SCALE}: expected an object {{objective name: factor}}, got {quote(value)}"
-        )
-    factors = {}
-    for name, factor in value.items():
-        number = isinstance(factor, (int, float)) and not isinstance(factor, bool)
-        if not (number and math.isfinite(factor) and factor > 0):
-            raise InvalidArgument(
-                f"kwargs_json.{REWARD_SCALE}.{quote(name)}: expected a finite number > 0, got {quote(factor)}"
-            )
-        factors[name] = float(factor)
-    return factors
-
-
-def _scaled(objective: Objective, factor: float) -> Objective:
-    return dataclasses.replace(
-        objective,
-        min=objective.min * factor,
-        max=objective.max * factor,
-        description=f"{objective.description} (reward x{factor:g})",
-        scale=factor,
-    )
-
-
 class Session:
     """B instances of one Task, stepped together."""
 
@@ -183,7 +150,7 @@ class Session:
                 f"got {quote(unknown)}"
             )
         self.objectives: tuple[Objective, ...] = tuple(
-            _scaled(o, reward_scale[o.name]) if o.name in reward_scale else o for o in first.objectives
+            scaled(o, reward_scale[o.name]) if o.name in reward_scale else o for o in first.objectives
         )
         # None when nothing is scaled: the hot path then skips the multiply.
         self._scale = np.array([o.scale for o in self.objectives], np.float32) if reward_scale else None
