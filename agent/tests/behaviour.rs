@@ -1,22 +1,17 @@
 //! Behavioural tests of MO-MPO policy improvement on a one-state bandit with a 1-D
 //! continuous action and two objectives in conflict, Q_1(a) = -(a-1)^2 and
 //! Q_2(a) = -(a+1)^2, given in closed form (a bandit's Q is its reward).
-//!
-//! Tests that seed libtorch's global RNG hold `RNG` so they do not interleave.
+
+mod common;
 
 use agent::algo::{Learner, LearnerDims};
 use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
 use agent::nets::ActionKind;
-use std::sync::Mutex;
 use tch::{Device, Kind, Tensor};
 
-static RNG: Mutex<()> = Mutex::new(());
-
-/// Serialises the tests and uses one libtorch thread (these networks are tiny; more
-/// threads only add synchronisation cost on a shared machine).
+/// One test at a time (`common::exclusive_rng`), from seed 0.
 fn exclusive() -> std::sync::MutexGuard<'static, ()> {
-    let guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
-    tch::set_num_threads(1);
+    let guard = common::exclusive_rng();
     tch::manual_seed(0);
     guard
 }

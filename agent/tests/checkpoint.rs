@@ -7,10 +7,6 @@ use agent::algo::Learner;
 use common::{continuous_learner, movmpo_mocap_learner, random_batch};
 use tch::{Device, Kind, Tensor};
 
-/// The round trips seed libtorch's process-global RNG between two steps that must
-/// match; holding this keeps the tests of this binary from interleaving.
-static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
 /// Three steps, a checkpoint in `dir`, and the restored learner, checked to act alike.
 fn trained_and_restored(mut learner: Learner, dir: &std::path::Path) -> (Learner, Learner) {
     for seed in 0..3 {
@@ -64,7 +60,7 @@ fn step_alike(
 
 #[test]
 fn round_trip_gives_identical_outputs_and_next_step() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     let dir = tempfile::tempdir().unwrap();
     let (mut learner, mut restored) = trained_and_restored(continuous_learner(), dir.path());
@@ -85,6 +81,7 @@ fn round_trip_gives_identical_outputs_and_next_step() {
 
 #[test]
 fn missing_checkpoint_names_the_path() {
+    let _rng = common::exclusive_rng();
     let err = Learner::load_checkpoint(std::path::Path::new("/nonexistent/ckpt"), Device::Cpu)
         .unwrap_err();
     assert!(
@@ -95,7 +92,7 @@ fn missing_checkpoint_names_the_path() {
 
 #[test]
 fn movmpo_with_the_mocap_torso_round_trips() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     let dir = tempfile::tempdir().unwrap();
     // The deterministic action uses the latent's mean, so the restored one matches.
@@ -107,7 +104,7 @@ fn movmpo_with_the_mocap_torso_round_trips() {
 
 #[test]
 fn per_dimension_multipliers_round_trip() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     let dir = tempfile::tempdir().unwrap();
     let learner = common::continuous_learner_with(|cfg| {
@@ -127,7 +124,7 @@ fn per_dimension_multipliers_round_trip() {
 
 #[test]
 fn movmpo_per_dimension_multipliers_round_trip() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     let dir = tempfile::tempdir().unwrap();
     // MO-V-MPO fits its policy through the same trust region, so the option applies.

@@ -10,7 +10,7 @@ use tch::{Device, Kind, Tensor};
 
 #[test]
 fn continuous_mompo_step_fits_the_critic_and_keeps_duals_positive() {
-    tch::set_num_threads(1);
+    let _rng = common::exclusive_rng();
     // gamma = 0: the Retrace target is the reward itself, a fixed regression target.
     let mut learner = continuous_learner_with(|cfg| {
         cfg.mpo.discount = 0.0;
@@ -51,7 +51,7 @@ fn continuous_mompo_step_fits_the_critic_and_keeps_duals_positive() {
 
 #[test]
 fn discrete_scalarized_step_uses_one_critic_and_exact_estep() {
-    tch::set_num_threads(1);
+    let _rng = common::exclusive_rng();
     let mut learner = discrete_scalarized_learner(10_000);
     let batch = random_batch(&learner, 12);
     let stats = learner.step(&batch).unwrap();
@@ -85,6 +85,7 @@ fn discrete_scalarized_step_uses_one_critic_and_exact_estep() {
 
 #[test]
 fn mis_shaped_batch_is_rejected_with_the_shapes() {
+    let _rng = common::exclusive_rng();
     let mut learner = continuous_learner();
     let mut batch = random_batch(&learner, 13);
     batch.rewards = batch.rewards.narrow(2, 0, 1);
@@ -97,6 +98,7 @@ fn mis_shaped_batch_is_rejected_with_the_shapes() {
 
 #[test]
 fn policy_snapshot_drives_an_actor_policy() {
+    let _rng = common::exclusive_rng();
     let learner = continuous_learner();
     let mut actor =
         agent::nets::ActorPolicy::new(&learner.config().network, learner.dims(), Device::Cpu);
@@ -192,7 +194,7 @@ fn same_steps(
 
 #[test]
 fn padded_steps_change_neither_losses_nor_updates() {
-    tch::set_num_threads(1);
+    let _rng = common::exclusive_rng();
     let make = || continuous_learner_with(|cfg| cfg.mpo.learning_rate = 1e-2);
     let batch = padded_batch(&make(), 21);
     // Snippet 1: s_1 is terminal and s_2, s_3 padding; snippet 2: s_2, s_3 padding.

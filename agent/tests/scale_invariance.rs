@@ -8,8 +8,8 @@
 //! steps more (measured: mean action +0.75 vs -0.78 after 600 policy-improvement
 //! steps); with eta = exp(p) (`temperature_parameterization = "log"`) a step is
 //! relative and the catch-up takes about ln(100) / 0.1 ~ 46 steps.
-//!
-//! Its own binary: libtorch's random generator is process-global.
+
+mod common;
 
 use agent::algo::{Learner, LearnerDims, SnippetBatch};
 use agent::config::{
@@ -23,13 +23,6 @@ const STATES: i64 = 32;
 /// moving a little with each batch of samples).
 const STEPS: usize = 2000;
 const TAIL: usize = 200;
-
-/// One run at a time: the tests share libtorch's global generator, and interleaved
-/// draws would make each run's numbers depend on the other's.
-fn exclusive() -> std::sync::MutexGuard<'static, ()> {
-    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    LOCK.lock().unwrap_or_else(|e| e.into_inner())
-}
 
 fn bandit(kind: TemperatureParameterization) -> Learner {
     tch::manual_seed(0);
@@ -126,7 +119,7 @@ fn learned(kind: TemperatureParameterization, left_scale: f64, steps: usize) -> 
 
 #[test]
 fn a_rescaled_objective_does_not_move_the_policy_with_log_temperatures() {
-    let _guard = exclusive();
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     let log = TemperatureParameterization::Log;
     let (plain, scaled) = (improved(log, 1.0, STEPS), improved(log, 100.0, STEPS));
@@ -140,7 +133,7 @@ fn a_rescaled_objective_does_not_move_the_policy_with_log_temperatures() {
 
 #[test]
 fn a_rescaled_objective_does_not_move_the_full_learner_with_log_temperatures() {
-    let _guard = exclusive();
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     let log = TemperatureParameterization::Log;
     let (plain, scaled) = (learned(log, 1.0, STEPS), learned(log, 100.0, STEPS));
@@ -157,7 +150,7 @@ fn a_rescaled_objective_does_not_move_the_full_learner_with_log_temperatures() {
 #[ignore]
 #[allow(clippy::print_stdout, reason = "a measurement to read, not a check")]
 fn measure_both_parameterizations() {
-    let _guard = exclusive();
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     for kind in [
         TemperatureParameterization::Softplus,

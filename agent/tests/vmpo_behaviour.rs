@@ -3,17 +3,17 @@
 //! conflict, r_1(a) = -(a-1)^2 and r_2(a) = -(a+1)^2 (one-step episodes, so the value
 //! targets are the rewards and the advantages are r_k - V_k).
 //!
-//! In its own test binary: the actions are drawn from libtorch's process-global RNG.
+//! The actions are drawn from libtorch's process-global RNG (`common::exclusive_rng`).
 //! (Measured when written: a 10:1 epsilon ratio moves the mean action by about 0.15
 //! from the equal-epsilon compromise, and epsilon = 0 switches an objective off.)
+
+mod common;
 
 use agent::algo::{Learner, LearnerDims, SnippetBatch};
 use agent::config::{Algorithm, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
 use agent::nets::ActionKind;
-use std::sync::Mutex;
 use tch::{Device, Kind, Tensor};
 
-static RNG: Mutex<()> = Mutex::new(());
 const UNROLLS: i64 = 64;
 
 fn bandit(eps: [f64; 2]) -> Learner {
@@ -83,7 +83,7 @@ fn trained_mean(eps: [f64; 2], steps: usize) -> f64 {
 
 #[test]
 fn the_larger_epsilon_pulls_the_policy_to_its_objective() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     tch::manual_seed(0);
     let right = trained_mean([0.1, 0.01], 400);
@@ -108,7 +108,7 @@ fn the_larger_epsilon_pulls_the_policy_to_its_objective() {
 
 #[test]
 fn a_zero_epsilon_objective_has_no_influence() {
-    let _guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let _rng = common::exclusive_rng();
     tch::set_num_threads(1);
     tch::manual_seed(1);
     let only_right = trained_mean([0.1, 0.0], 400);

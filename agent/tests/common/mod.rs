@@ -11,6 +11,18 @@ use tch::{Device, Kind, Tensor};
 
 pub const OBS: i64 = 3;
 
+/// Holds a test binary's tests that draw from libtorch's process-global generator
+/// (learner construction seeds it; sampling draws from it) to one at a time, with one
+/// libtorch thread: interleaved draws from tests on other threads would change a
+/// run's numbers, so comparisons of two runs could fail by chance. The networks are
+/// tiny, so more threads would only add synchronisation cost.
+pub fn exclusive_rng() -> std::sync::MutexGuard<'static, ()> {
+    static RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let guard = RNG.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    guard
+}
+
 pub fn small_config() -> LearnerConfig {
     let mut cfg = LearnerConfig {
         network: NetworkConfig {
