@@ -137,7 +137,8 @@ async fn start(ctx: &Sessions<'_>, client: &EnvClient) -> Result<Live, EnvError>
 
 /// Make the session again after it was lost: on the same server when it answers again
 /// (a restart), else on another address the pool resolves now, backing off between
-/// rounds over all of them. `None`: the run ended meanwhile.
+/// rounds over all of them; it gives up after about 5 minutes in which no server took
+/// the session. `None`: the run ended meanwhile.
 async fn restart(
     ctx: &Sessions<'_>,
     on: &mut Assignment,
@@ -146,7 +147,9 @@ async fn restart(
     tracing::warn!(actor = ctx.id, server = %on.address, error = %cause, "env session lost; reconnecting");
     let mut delay = Duration::from_millis(200);
     let mut last = None;
-    for _ in 0..30 {
+    // Backoff 0.2 s doubling to 5 s: about 5 minutes over 64 rounds, enough for a
+    // server (or its replacement) to start.
+    for _ in 0..64 {
         let c = ctx.schedule.counters();
         if c.stop || c.env_steps >= ctx.total_env_steps {
             return Ok(None);
