@@ -267,7 +267,15 @@ async fn lookup(spec: &str, target: &DnsTarget) -> Result<Vec<ServerAddress>, Di
     let found = resolver
         .lookup_ip(target.name.as_str())
         .await
-        .map_err(|e| failed(e.to_string()))?;
+        .map_err(|e| {
+            failed(if e.is_nx_domain() {
+                "no such name (NXDOMAIN)".into()
+            } else if e.is_no_records_found() {
+                "no A or AAAA records".into()
+            } else {
+                e.to_string()
+            })
+        })?;
     let mut addresses: Vec<ServerAddress> = found
         .iter()
         .map(|ip| ServerAddress {

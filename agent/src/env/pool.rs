@@ -139,7 +139,8 @@ impl ServerPool {
     }
 
     /// A connected server, the first one found: for one-off sessions (the spec probe,
-    /// videos) at the start of a run.
+    /// videos) right after [`Self::connect`], which keeps at least one. Later, when
+    /// servers may have gone, [`Self::live`] finds one that answers.
     pub fn first(&self) -> Assignment {
         let state = self.state();
         let (address, client) = state
@@ -253,9 +254,11 @@ impl ServerPool {
     /// A server that answers now: the first found if it still does, else any other
     /// (the final evaluation must not depend on the one server that went away).
     pub async fn live(&self) -> Result<Assignment, EnvError> {
-        let first = self.first();
+        // `known` is never empty: connect found an address, and only a complete
+        // resolve (every entry gave at least one) replaces it.
+        let first = self.state().known[0].clone();
         let mut last_error = None;
-        for address in self.candidates(&first.address).await {
+        for address in self.candidates(&first).await {
             let client = match self.client(&address).await {
                 Ok(client) => client,
                 Err(e) => {
