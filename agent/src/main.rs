@@ -7,6 +7,7 @@ use std::time::Instant;
 use agent::config::DeviceChoice;
 use agent::env::connection::ConnectionConfig;
 use agent::env::grpc::{EnvClient, RemoteEnv};
+use agent::env::pool::ServerPool;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions, random_action};
 use agent::eval::evaluate_checkpoint;
@@ -38,8 +39,9 @@ enum Command {
         /// Continue the run in this directory from its latest checkpoint (reads its config.toml).
         #[arg(long)]
         resume: Option<PathBuf>,
-        /// Server address host:port or https://host:port (repeatable); overrides the
-        /// config's servers.
+        /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT
+        /// (every address of NAME), dns://NAMESERVER/NAME:PORT or file:PATH (one address
+        /// per line, re-read when a server is lost); overrides the config's servers.
         #[arg(long = "server")]
         servers: Vec<String>,
         #[command(flatten)]
@@ -66,8 +68,9 @@ enum Command {
         /// Sweep file, e.g. configs/sweeps/dst.toml.
         #[arg(long)]
         config: PathBuf,
-        /// Server address host:port or https://host:port (repeatable); default: the base
-        /// config's, or a local server.
+        /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT,
+        /// dns://NAMESERVER/NAME:PORT or file:PATH; default: the base config's, or a
+        /// local server.
         #[arg(long = "server")]
         servers: Vec<String>,
         #[command(flatten)]
@@ -89,8 +92,9 @@ enum Command {
         /// Episodes to run.
         #[arg(long, default_value_t = 10)]
         episodes: usize,
-        /// Server address host:port or https://host:port (repeatable); default: a local
-        /// server.
+        /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT,
+        /// dns://NAMESERVER/NAME:PORT or file:PATH (the first address found is used);
+        /// default: a local server.
         #[arg(long = "server")]
         servers: Vec<String>,
         /// How to reach --server (the run's own env.connection is not used).
@@ -105,7 +109,8 @@ enum Command {
     },
     /// List the envs a server offers, with their objectives.
     Envs {
-        /// Server address host:port or https://host:port. Omitted: start a local server
+        /// Server address host:port, https://host:port, dns:NAME:PORT or
+        /// file:PATH (its first server). Omitted: start a local server
         /// for the listing.
         #[arg(long)]
         server: Option<String>,
@@ -114,7 +119,8 @@ enum Command {
     },
     /// Step envs with uniformly random actions and print per-episode vector returns.
     Demo {
-        /// Server address host:port or https://host:port. Omitted: start a local server
+        /// Server address host:port, https://host:port, dns:NAME:PORT or
+        /// file:PATH (its first server). Omitted: start a local server
         /// on 127.0.0.1.
         #[arg(long)]
         server: Option<String>,
@@ -456,11 +462,9 @@ async fn connect(
     connection.validate()?;
     match server {
         Some(address) => {
-            let credentials = connection.load()?;
-            Ok((
-                EnvClient::connect_with_credentials(&address, &credentials).await?,
-                None,
-            ))
+            // Any address form, a dns: name or a file: list included: its first server.
+            let servers = ServerPool::connect(&[address], &connection).await?;
+            Ok((servers.first().client, None))
         }
         None => {
             refuse_credentials_for_local(&connection)?;
