@@ -94,9 +94,9 @@ class ServerActor:
             print(f"env_server {self._address} exited with code {code}; ending its actor", file=sys.stderr, flush=True)
             os._exit(1)
 
-    def address(self) -> tuple[str, int]:
-        """The server's `host:port` and its process id (on this actor's node)."""
-        return self._address, self._proc.pid
+    def address(self) -> tuple[str, int, str]:
+        """The server's `host:port`, its process id and the id of the Ray node it runs on."""
+        return self._address, self._proc.pid, ray.get_runtime_context().get_node_id()
 
     def wait(self) -> int:
         """Block until the server exits; its exit code (usually the actor dies first, failing this call)."""

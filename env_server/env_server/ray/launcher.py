@@ -229,10 +229,10 @@ class Fleet:
         elif isinstance(result, Exception):
             slot.retry_at = time.monotonic() + RETRY_S  # restarting; ask again
         else:
-            slot.address, pid = result
+            slot.address, pid, node = result
             slot.starts += 1
             verb = "up" if slot.starts == 1 else "back"
-            _log(f"server {slot.index} {verb} at {slot.address} (pid {pid})")
+            _log(f"server {slot.index} {verb} at {slot.address} (pid {pid}, node {node[:12]})")
             slot.pending, slot.waiting = slot.actor.wait.remote(), True
 
     def stop(self) -> None:
@@ -265,6 +265,10 @@ class _Signals:
     def __init__(self) -> None:
         self.received: int | None = None
         self.child: subprocess.Popen | None = None
+        self.install()
+
+    def install(self) -> None:
+        """(Re)install the handlers; `ray.init` replaces the SIGTERM one with its own, which exits at once."""
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._handle)
 
@@ -328,6 +332,7 @@ def run(opts: Options, signals: _Signals) -> int:
     path = os.path.abspath(path)
     started = time.monotonic()
     ray = _start_ray(opts)
+    signals.install()
     fleet = None
     try:
         fleet = Fleet(ray, _start_actors(ray, opts), path)
