@@ -195,6 +195,21 @@ def test_a_local_ray_runs_the_command_on_the_servers_and_returns_its_exit_code()
     wait_for("servers stopped with the launcher", lambda: not any(pid_alive(p) for p in pids), 10)
 
 
+def test_ctrl_c_reaches_the_command_once_and_stops_the_servers():
+    sleeper = "import signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(130)); time.sleep(120)"
+    launcher = Launcher("--num-servers", "1", "--", sys.executable, "-c", sleeper)
+    try:
+        wait_for("the server up", lambda: len(launcher.servers()) == 1, 120)
+        time.sleep(1)  # the command has started and set its handler
+        launcher.proc.send_signal(signal.SIGINT)
+        code = launcher.wait(60)
+    finally:
+        launcher.stop()
+    assert code == 130, launcher.output()
+    ((_, pid, _),) = launcher.servers().values()
+    wait_for("the server stopped with the launcher", lambda: not pid_alive(pid), 10)
+
+
 # --- a two-node cluster --------------------------------------------------------------------------
 
 

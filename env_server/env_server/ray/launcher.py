@@ -361,7 +361,8 @@ def run(opts: Options, signals: _Signals) -> int:
         signals.child = child
         while child.poll() is None:
             fleet.poll(0.5)
-        return child.returncode
+        # A COMMAND killed by signal S (Popen's -S) exits the launcher the way a shell reports it: 128 + S.
+        return 128 - child.returncode if child.returncode < 0 else child.returncode
     finally:
         if signals.child is not None and signals.child.poll() is None:
             signals.child.terminate()
