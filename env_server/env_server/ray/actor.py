@@ -33,12 +33,14 @@ STOP_GRACE_S = 10.0
 """How long a stopped server may take to close its sessions before it is killed."""
 
 _PR_SET_PDEATHSIG = 1
+# Looked up here, not between fork and exec, where only async-signal-safe work is wise.
+_prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
 
 
 def _die_with_parent() -> None:
-    """In the server child, before exec: SIGTERM when the actor's process dies (Linux only)."""
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    """In the server child, before exec: SIGTERM when the actor's process dies (Linux only; as Ray does)."""
+    if _prctl is not None:
+        _prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 class ServerActor:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import logging
 import os
 import shlex
 import signal
@@ -257,7 +258,7 @@ class Fleet:
 class _Signals:
     """SIGINT/SIGTERM: remembered, and passed on once to COMMAND while it runs.
 
-    COMMAND runs in its own process group, so a terminal's Ctrl-C reaches only the launcher,
+    COMMAND runs in its own session (so its own process group), so a terminal's Ctrl-C reaches only the launcher,
     which forwards exactly one SIGINT: an agent that takes a second Ctrl-C as "quit now" still
     gets the chance to write its checkpoint and summary.
     """
@@ -289,7 +290,12 @@ def _start_ray(opts: Options) -> Any:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     import ray  # the real Ray: absolute import, after the environment above is set
 
-    kwargs: dict[str, Any] = {"namespace": NAMESPACE, "include_dashboard": False, "log_to_driver": False}
+    kwargs: dict[str, Any] = {
+        "namespace": NAMESPACE,
+        "include_dashboard": False,
+        "log_to_driver": False,  # server logs stay in Ray's worker logs, out of COMMAND's output
+        "logging_level": logging.WARNING,
+    }
     if address == "local":
         os.environ.pop("RAY_ADDRESS", None)  # ray.init prefers $RAY_ADDRESS over address="local"
         kwargs.update(
@@ -355,7 +361,9 @@ def run(opts: Options, signals: _Signals) -> int:
             return 0
         command = [*opts.command, "--server", f"file:{path}"]
         try:
-            child = subprocess.Popen(command, env={**os.environ, "ENV_SERVER_ADDRESS_FILE": path}, process_group=0)
+            child = subprocess.Popen(
+                command, env={**os.environ, "ENV_SERVER_ADDRESS_FILE": path}, start_new_session=True
+            )
         except OSError as exc:
             raise LaunchError(f"COMMAND: expected a program to run, got {command[0]!r} ({exc.strerror})") from None
         signals.child = child
