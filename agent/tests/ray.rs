@@ -46,7 +46,13 @@ fn training_over_ray_servers_survives_a_killed_server() {
 
     let started = Instant::now();
     let mut launcher = Command::new(default_python())
-        .args(["-m", "env_server.ray", "--num-servers", "3", "--address-file"])
+        .args([
+            "-m",
+            "env_server.ray",
+            "--num-servers",
+            "3",
+            "--address-file",
+        ])
         .arg(&address_file)
         .args(["--server-args", "--log-level WARNING", "--"])
         .arg(env!("CARGO_BIN_EXE_agent"))
