@@ -5,7 +5,8 @@
 //! Continuous actions are sampled unclipped (that is what the replay stores and the
 //! critic sees); the env receives them clipped to [-1, 1] and mapped linearly onto a
 //! finite Box, e.g. [-2, 2] for Pendulum. A session lost to a server restart is
-//! made again and the run continues.
+//! made again and the run continues; when its server stays away, the session is made
+//! on another server the pool's entries list now ([`ServerPool`]).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -13,7 +14,8 @@ use std::time::Duration;
 use tch::{Kind, Tensor};
 use tokio::sync::watch;
 
-use crate::env::grpc::{EnvClient, RemoteEnv};
+use crate::env::grpc::{EnvClient, RemoteEnv, RetryPolicy};
+use crate::env::pool::{Assignment, ServerPool};
 use crate::env::{Env, HostTensor, MakeOptions};
 use crate::error::{EnvError, StatusKind};
 use crate::metrics::{EpisodeRecord, RunFiles};
@@ -28,8 +30,10 @@ use crate::spec::Space;
 pub struct ActorContext {
     /// Actor number (seeds and logs).
     pub id: usize,
-    /// Server connection.
-    pub client: EnvClient,
+    /// The server the actor starts on.
+    pub server: Assignment,
+    /// The run's servers, asked for another when this actor's server is lost.
+    pub servers: Arc<ServerPool>,
     /// Session to make (and to make again after a server restart).
     pub make: MakeOptions,
     /// The acting policy (parameters arrive through `params`).
@@ -109,14 +113,15 @@ struct Live {
 /// The parts of an actor that make sessions (shared across awaits, so no tensors).
 struct Sessions<'a> {
     id: usize,
-    client: &'a EnvClient,
+    servers: &'a ServerPool,
     make: &'a MakeOptions,
     layout: SnippetLayout,
     schedule: &'a Schedule,
+    total_env_steps: u64,
 }
 
-async fn start(ctx: &Sessions<'_>) -> Result<Live, EnvError> {
-    let mut env = ctx.client.make(ctx.make).await?;
+async fn start(ctx: &Sessions<'_>, client: &EnvClient) -> Result<Live, EnvError> {
+    let mut env = client.make(ctx.make).await?;
     // One stream per session: about 0.2 ms less per step than unary calls (issue 2's
     // bench). A broken stream closes the session on the server; `restart` makes it again.
     env.use_stream();
@@ -130,28 +135,63 @@ async fn start(ctx: &Sessions<'_>) -> Result<Live, EnvError> {
     Ok(Live { env, adders, obs })
 }
 
-/// Make the session again after the server lost it (restart), backing off.
-async fn restart(ctx: &Sessions<'_>, cause: &EnvError) -> Result<Live, EnvError> {
-    tracing::warn!(actor = ctx.id, error = %cause, "env session lost; reconnecting");
+/// Make the session again after it was lost: on the same server when it answers again
+/// (a restart), else on another address the pool resolves now, backing off between
+/// rounds over all of them. `None`: the run ended meanwhile.
+async fn restart(
+    ctx: &Sessions<'_>,
+    on: &mut Assignment,
+    cause: &EnvError,
+) -> Result<Option<Live>, EnvError> {
+    tracing::warn!(actor = ctx.id, server = %on.address, error = %cause, "env session lost; reconnecting");
     let mut delay = Duration::from_millis(200);
+    let mut last = None;
     for _ in 0..30 {
-        if ctx.schedule.counters().stop {
-            break;
+        let c = ctx.schedule.counters();
+        if c.stop || c.env_steps >= ctx.total_env_steps {
+            return Ok(None);
         }
-        match start(ctx).await {
-            Ok(live) => {
-                tracing::info!(actor = ctx.id, "env session made again");
-                return Ok(live);
+        for address in ctx.servers.candidates(&on.address).await {
+            let attempt = match ctx.servers.client(&address).await {
+                // Probed with few retries: other addresses wait, and rounds back off.
+                Ok(client) => start(ctx, &client.with_retry(RetryPolicy::quick()))
+                    .await
+                    .map(|live| (live, client)),
+                Err(e) => Err(e),
+            };
+            match attempt {
+                Ok((live, client)) => {
+                    if address == on.address {
+                        tracing::info!(actor = ctx.id, server = %address, "env session made again");
+                    } else {
+                        ctx.servers.moved(ctx.id, &on.address, &address);
+                    }
+                    *on = Assignment { address, client };
+                    return Ok(Some(live));
+                }
+                Err(e) if recoverable(&e) => {
+                    if unreachable(&e) {
+                        ctx.servers.forget(&address);
+                    }
+                    tracing::warn!(actor = ctx.id, server = %address, error = %e, "reconnect failed");
+                    last = Some(e);
+                }
+                Err(e) => return Err(e),
             }
-            Err(e) => tracing::warn!(actor = ctx.id, error = %e, "reconnect failed; retrying"),
         }
         tokio::time::sleep(delay).await;
         delay = (delay * 2).min(Duration::from_secs(5));
     }
+    let last = last.map_or_else(String::new, |e| format!(" (last attempt: {e})"));
     Err(EnvError::Process(format!(
-        "actor {}: could not make the session again after: {cause}",
+        "actor {}: could not make the session again after: {cause}{last}",
         ctx.id
     )))
+}
+
+/// The server did not answer at all (as opposed to answering NOT_FOUND).
+fn unreachable(e: &EnvError) -> bool {
+    e.status_kind() == Some(StatusKind::Unavailable) || matches!(e, EnvError::Connect { .. })
 }
 
 fn recoverable(e: &EnvError) -> bool {
@@ -165,7 +205,8 @@ fn recoverable(e: &EnvError) -> bool {
 pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     let ActorContext {
         id,
-        client,
+        server,
+        servers,
         make,
         mut policy,
         mut params,
@@ -176,14 +217,24 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     } = ctx;
     let sessions = Sessions {
         id,
-        client: &client,
+        servers: &servers,
         make: &make,
         layout,
         schedule: &schedule,
+        total_env_steps,
     };
     let b = make.num_envs;
     let (o, k) = (layout.obs_dim, layout.num_rewards);
-    let mut live = start(&sessions).await?;
+    let mut on = server;
+    let mut live = match start(&sessions, &on.client).await {
+        Ok(live) => live,
+        // The server went away between the pool's connect and this session.
+        Err(e) if recoverable(&e) => match restart(&sessions, &mut on, &e).await? {
+            Some(live) => live,
+            None => return Ok(()),
+        },
+        Err(e) => return Err(e),
+    };
     let map = ActionMap::new(&live.env.spec().action_space)?;
     loop {
         if params.has_changed().unwrap_or(false) {
@@ -203,10 +254,13 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         let (env_action, replay_actions) = map.apply(&out.actions, b);
         let step = match live.env.step(&env_action).await {
             Ok(step) => step,
-            Err(e) if recoverable(&e) => {
-                live = restart(&sessions, &e).await?;
-                continue;
-            }
+            Err(e) if recoverable(&e) => match restart(&sessions, &mut on, &e).await? {
+                Some(restarted) => {
+                    live = restarted;
+                    continue;
+                }
+                None => break,
+            },
             Err(e) => return Err(e),
         };
         let next = step.observation.to_flat_f32();

@@ -87,6 +87,9 @@ pub enum EnvError {
         /// What was expected and what was found (never the file's content).
         reason: String,
     },
+    /// A server address (`--server`, `env.servers`) was malformed or resolved to nothing.
+    #[error(transparent)]
+    Discovery(#[from] crate::env::discovery::DiscoveryError),
     /// Starting or talking to a local env_server process failed.
     #[error("env_server process: {0}")]
     Process(String),

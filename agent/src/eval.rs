@@ -11,12 +11,13 @@ use crate::actor::ActionMap;
 use crate::algo::Learner;
 use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::{EnvClient, RemoteEnv};
+use crate::env::pool::ServerPool;
 use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
 use crate::learner::latest_checkpoint;
 use crate::nets::ActorPolicy;
 use crate::run_config::TrainConfig;
-use crate::train::{TrainError, connect_all, make_options, mean_of, probe_spec};
+use crate::train::{TrainError, make_options, mean_of, probe_spec};
 use crate::video::{Recorder, VideoOptions, VideoReport};
 
 /// Watches an evaluation session after its reset and after every step (a video
@@ -156,16 +157,19 @@ pub async fn evaluate_checkpoint(
     policy
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
-    let clients = connect_all(addresses, connection).await?;
-    let spec = probe_spec(&clients[0], &cfg).await?;
+    let client = ServerPool::connect(addresses, connection)
+        .await?
+        .first()
+        .client;
+    let spec = probe_spec(&client, &cfg).await?;
     drop(learner);
     let (done, video) = match video {
         Some((out, options)) => {
             let (done, report) =
-                evaluate_recorded(&clients[0], &cfg, policy, episodes, out, options).await?;
+                evaluate_recorded(&client, &cfg, policy, episodes, out, options).await?;
             (done, Some(report))
         }
-        None => (evaluate(&clients[0], &cfg, policy, episodes).await?, None),
+        None => (evaluate(&client, &cfg, policy, episodes).await?, None),
     };
     Ok(EvalReport {
         checkpoint: ckpt,

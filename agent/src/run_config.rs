@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, LearnerConfig};
 use crate::env::connection::ConnectionConfig;
+use crate::env::discovery::{DiscoveryError, FORMS, ServerSource};
 
 /// Which environment the actors step, and where.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -32,8 +33,12 @@ pub struct EnvConfig {
     /// Constructor keyword arguments passed to the server.
     #[serde(default)]
     pub kwargs: serde_json::Map<String, serde_json::Value>,
-    /// Servers (`host:port`, `http://…` or `https://…`) the actors connect to,
-    /// round-robin; empty = start a local env_server on 127.0.0.1 for the run.
+    /// Servers the actors connect to: `host:port`, `http://…`, `https://…`,
+    /// `dns:NAME:PORT` (every A/AAAA record of NAME; `dns://NAMESERVER_IP[:PORT]/NAME:PORT`
+    /// asks that name server) or `file:PATH` (one address per line, read again when a
+    /// server is lost). Each actor is pinned to one address, spread evenly, and moves to
+    /// another when its server stays unreachable. Empty = start a local env_server on
+    /// 127.0.0.1 for the run.
     #[serde(default)]
     pub servers: Vec<String>,
     /// TLS and bearer-token files for `servers` (`[env.connection]`); they apply to
@@ -178,6 +183,19 @@ impl TrainConfig {
             return invalid("env.num_actors", ">= 1", "0".into());
         }
         self.env.connection.validate()?;
+        for (i, spec) in self.env.servers.iter().enumerate() {
+            match ServerSource::parse(spec) {
+                Ok(_) => {}
+                Err(DiscoveryError::Syntax { expected, got, .. }) => {
+                    return invalid(
+                        &format!("env.servers[{i}]"),
+                        &expected,
+                        format!("{spec:?} ({got})"),
+                    );
+                }
+                Err(e) => return invalid(&format!("env.servers[{i}]"), FORMS, e.to_string()),
+            }
+        }
         if self.env.workers >= self.env.num_envs {
             return invalid(
                 "env.workers",
@@ -347,6 +365,17 @@ mod tests {
         assert_eq!(
             err,
             "env.workers must be at most env.num_envs - 1 = 3, got 4"
+        );
+        std::fs::write(
+            &path,
+            "[env]\nid = \"dst\"\nservers = [\"h:1\", \"dns:envs\"]\n",
+        )
+        .unwrap();
+        let err = TrainConfig::load(&path).unwrap_err().to_string();
+        assert_eq!(
+            err,
+            "env.servers[1] must be dns:NAME:PORT or dns://NAMESERVER/NAME:PORT (a DNS name \
+             and a port), got \"dns:envs\" (no port in \"envs\")"
         );
         std::fs::write(&path, "[env]\nid = \"dst\"\nnum_env = 3\n").unwrap();
         let err = TrainConfig::load(&path).unwrap_err().to_string();

@@ -5,8 +5,10 @@
 //! demos and tests. Shapes: observations `[B, ...]` per leaf, reward `[B, K]`.
 
 pub mod connection;
+pub mod discovery;
 pub mod frames;
 pub mod grpc;
+pub mod pool;
 pub mod server_process;
 
 use serde::Serialize;

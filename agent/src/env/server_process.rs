@@ -1,7 +1,7 @@
 //! Start and stop a local `env_server` process (`python -m env_server`).
 //!
 //! Used by the CLI's demo, the end-to-end tests and the benchmarks. The server
-//! binds 127.0.0.1 on an OS-chosen port and announces it with one stdout line,
+//! binds 127.0.0.1 (or another loopback address) on an OS-chosen port and announces it with one stdout line,
 //! `LISTENING <host>:<port>`, which is read here.
 
 use std::path::{Path, PathBuf};
@@ -18,6 +18,9 @@ use crate::error::EnvError;
 pub struct ServerOptions {
     /// Python interpreter that has `env_server` installed.
     pub python: PathBuf,
+    /// Address to bind: 127.0.0.1, or another loopback address (Linux routes all of
+    /// 127/8 to `lo`) to run several servers on one port, as several hosts would.
+    pub host: String,
     /// Port to bind; 0 lets the OS choose.
     pub port: u16,
     /// Extra command-line flags, e.g. `["--max-sessions", "4"]`.
@@ -30,6 +33,7 @@ impl Default for ServerOptions {
     fn default() -> Self {
         Self {
             python: default_python(),
+            host: "127.0.0.1".into(),
             port: 0,
             extra_args: Vec::new(),
             startup_timeout: Duration::from_secs(120),
@@ -67,7 +71,7 @@ impl LocalServer {
                 "-m",
                 "env_server",
                 "--host",
-                "127.0.0.1",
+                &options.host,
                 "--port",
                 &options.port.to_string(),
             ])

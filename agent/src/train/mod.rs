@@ -21,8 +21,8 @@ use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
-use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::EnvClient;
+use crate::env::pool::{ActorServers, ServerPool};
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
 use crate::eval::{evaluate, evaluate_recorded};
@@ -137,9 +137,13 @@ pub struct TrainSummary {
     pub interrupted: Option<String>,
     /// The video of the final evaluation, when videos were asked for.
     pub eval_video: Option<VideoReport>,
+    /// The env servers each actor had its session on, in order (more than one when
+    /// its server was lost and it moved).
+    pub actor_servers: Vec<ActorServers>,
 }
 
-/// Run one training job against the servers at `addresses` (round-robin per actor).
+/// Run one training job against the servers `addresses` name (plain addresses, `dns:`
+/// names or `file:` lists; actors spread over every address found, see [`ServerPool`]).
 pub async fn train(
     cfg: TrainConfig,
     addresses: &[String],
@@ -147,8 +151,8 @@ pub async fn train(
 ) -> Result<TrainSummary, TrainError> {
     let started = Instant::now();
     configure_threads(cfg.learner.num_threads);
-    let clients = connect_all(addresses, &cfg.env.connection).await?;
-    let spec = probe_spec(&clients[0], &cfg).await?;
+    let servers = Arc::new(ServerPool::connect(addresses, &cfg.env.connection).await?);
+    let spec = probe_spec(&servers.first().client, &cfg).await?;
     let dims = LearnerDims::from_spec(&spec)?;
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
@@ -246,7 +250,8 @@ pub async fn train(
             .map_err(|e| TrainError::Stopped(e.to_string()))?;
         let ctx = ActorContext {
             id: a,
-            client: clients[a % clients.len()].clone(),
+            server: servers.assign(a),
+            servers: servers.clone(),
             make: MakeOptions {
                 num_workers: cfg.env.workers,
                 ..make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64)
@@ -268,7 +273,7 @@ pub async fn train(
 
     let videos = options.video.as_ref().and_then(|plan| {
         let ctx = PeriodicContext {
-            client: clients[0].clone(),
+            client: servers.first().client,
             cfg: cfg.clone(),
             dims: dims.clone(),
             params: params_rx.clone(),
@@ -354,7 +359,7 @@ pub async fn train(
         (None, Some(plan)) => {
             let path = run_dir.join("videos").join("final.mp4");
             let (eval, video) = evaluate_recorded(
-                &clients[0],
+                &servers.live().await?.client,
                 &cfg,
                 policy,
                 cfg.run.eval_episodes,
@@ -365,7 +370,13 @@ pub async fn train(
             (eval, Some(video))
         }
         (None, None) => (
-            evaluate(&clients[0], &cfg, policy, cfg.run.eval_episodes).await?,
+            evaluate(
+                &servers.live().await?.client,
+                &cfg,
+                policy,
+                cfg.run.eval_episodes,
+            )
+            .await?,
             None,
         ),
     };
@@ -388,6 +399,7 @@ pub async fn train(
         solved: schedule.solved(),
         interrupted: counters.interrupted.clone(),
         eval_video,
+        actor_servers: servers.actor_servers(),
     };
     if !summary.eval_episodes.is_empty() {
         let mut scalars = files.per_objective("eval/return", &summary.eval_return);
@@ -409,25 +421,6 @@ pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> 
     (0..k)
         .map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64)
         .collect()
-}
-
-pub(crate) async fn connect_all(
-    addresses: &[String],
-    connection: &ConnectionConfig,
-) -> Result<Vec<EnvClient>, EnvError> {
-    let credentials = connection.load()?;
-    let mut clients = Vec::new();
-    for address in addresses {
-        clients.push(EnvClient::connect_with_credentials(address, &credentials).await?);
-    }
-    if clients.is_empty() {
-        return Err(EnvError::BadInput {
-            field: "servers".into(),
-            expected: "at least one address".into(),
-            got: "none".into(),
-        });
-    }
-    Ok(clients)
 }
 
 pub(crate) fn make_options(cfg: &TrainConfig, num_envs: usize, seed: u64) -> MakeOptions {

@@ -55,8 +55,13 @@ impl std::fmt::Debug for Bearer {
 
 /// The endpoint for `address` (`host:port`, `http://` or `https://`): TLS for
 /// `https://`, and for a bare `host:port` when the credentials carry a CA or a client
-/// certificate.
-pub(super) fn endpoint(address: &str, credentials: &Credentials) -> Result<Endpoint, String> {
+/// certificate. `tls_name` is the name the certificate must carry when it is not
+/// `address`'s host (a `dns:` name whose IP `address` holds).
+pub(super) fn endpoint(
+    address: &str,
+    tls_name: Option<&str>,
+    credentials: &Credentials,
+) -> Result<Endpoint, String> {
     let tls = if let Some(rest) = address.strip_prefix("http://") {
         if credentials.implies_tls() {
             return Err(format!(
@@ -84,6 +89,10 @@ pub(super) fn endpoint(address: &str, credentials: &Credentials) -> Result<Endpo
         };
         if let Some(client) = &credentials.client {
             config = config.identity(Identity::from_pem(&client.cert_pem, &client.key_pem));
+        }
+        if let Some(name) = tls_name {
+            // Checked against the certificate and sent as SNI instead of the IP dialled.
+            config = config.domain_name(name);
         }
         endpoint = endpoint
             .tls_config(config)

@@ -26,6 +26,7 @@ use convert::{
 };
 
 use super::connection::Credentials;
+use super::discovery::ServerAddress;
 use super::{Env, HostTensor, MakeOptions, ResetResult, StepResult};
 use crate::error::{EnvError, StatusKind};
 use crate::spec::{EnvInfo, EnvSpec, ServerVersion};
@@ -60,6 +61,15 @@ impl Default for RetryPolicy {
 }
 
 impl RetryPolicy {
+    /// 3 attempts within about 0.25 s: for probing a server while others could take
+    /// its place (the caller backs off between its own rounds).
+    pub fn quick() -> Self {
+        Self {
+            max_attempts: 3,
+            ..Self::default()
+        }
+    }
+
     fn backoff(&self, attempt: u32) -> Duration {
         let secs = self.initial_backoff.as_secs_f64() * self.multiplier.powi(attempt as i32);
         Duration::from_secs_f64(secs.min(self.max_backoff.as_secs_f64()))
@@ -145,11 +155,23 @@ impl EnvClient {
         credentials: &Credentials,
         retry: RetryPolicy,
     ) -> Result<Self, EnvError> {
+        Self::connect_to(&ServerAddress::plain(address), credentials, retry).await
+    }
+
+    /// Connect to a server found by discovery: `server.dial` is dialled and, over TLS,
+    /// the certificate must carry `server.tls_name` when set.
+    pub async fn connect_to(
+        server: &ServerAddress,
+        credentials: &Credentials,
+        retry: RetryPolicy,
+    ) -> Result<Self, EnvError> {
+        let address = server.to_string();
         let connect_error = |reason: String| EnvError::Connect {
-            address: address.to_string(),
+            address: address.clone(),
             reason,
         };
-        let endpoint = channel::endpoint(address, credentials).map_err(connect_error)?;
+        let endpoint = channel::endpoint(&server.dial, server.tls_name.as_deref(), credentials)
+            .map_err(connect_error)?;
         let bearer = Bearer::new(credentials.token.as_deref()).map_err(connect_error)?;
         let mut attempt = 0;
         let channel = loop {
@@ -162,7 +184,7 @@ impl EnvClient {
                     )));
                 }
                 Err(e) if attempt + 1 < retry.max_attempts => {
-                    tracing::debug!(address, attempt, error = %e, "connect failed; retrying");
+                    tracing::debug!(%address, attempt, error = %e, "connect failed; retrying");
                     tokio::time::sleep(retry.backoff(attempt)).await;
                     attempt += 1;
                 }
@@ -180,14 +202,22 @@ impl EnvClient {
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
         Ok(Self {
             client,
-            address: address.to_string(),
+            address,
             retry,
         })
     }
 
-    /// The address this client talks to.
+    /// The address this client talks to (a resolved one with its DNS name).
     pub fn address(&self) -> &str {
         &self.address
+    }
+
+    /// The same channel, retrying UNAVAILABLE per `retry` instead.
+    pub fn with_retry(&self, retry: RetryPolicy) -> Self {
+        Self {
+            retry,
+            ..self.clone()
+        }
     }
 
     /// Run one unary call, retrying only UNAVAILABLE with backoff.
