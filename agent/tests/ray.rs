@@ -33,7 +33,6 @@ fn servers_up(lines: &[String]) -> Vec<(usize, i32)> {
 }
 
 #[test]
-#[ignore = "needs file: discovery"]
 fn training_over_ray_servers_survives_a_killed_server() {
     let dir = tempfile::tempdir().unwrap();
     let (runs, config) = smoke_dst(dir.path());
