@@ -97,7 +97,13 @@ class ServerActor:
             os._exit(1)
 
     def address(self) -> tuple[str, int, str]:
-        """The server's `host:port`, its process id and the id of the Ray node it runs on."""
+        """The server's `host:port`, its process id and the id of the Ray node it runs on.
+
+        Raises once the server has exited: the actor is about to end, and its old address
+        must not be mistaken for the restarted server's.
+        """
+        if self._proc.poll() is not None:
+            raise RuntimeError(f"env_server {self._address} has exited; its actor is restarting")
         return self._address, self._proc.pid, ray.get_runtime_context().get_node_id()
 
     def wait(self) -> int:

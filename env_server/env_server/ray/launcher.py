@@ -22,7 +22,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 NAMESPACE = "env_server"
@@ -30,6 +30,9 @@ NAMESPACE = "env_server"
 
 RETRY_S = 0.5
 """Pause before asking a restarting actor for its address again."""
+
+SLOW_RESTART_S = 60.0
+"""A server down this long is reported (once) as stuck: usually no node has the CPUs it needs."""
 
 _LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 
@@ -165,7 +168,8 @@ class _Slot:
     pending: Any = None  # ObjectRef of the call in flight: address() while starting, wait() while up
     waiting: bool = False  # pending is wait()
     retry_at: float = 0.0
-    starts: int = field(default=0)
+    starts: int = 0
+    down_since: float | None = None  # when the server was last seen going down
 
 
 class Fleet:
@@ -201,6 +205,12 @@ class Fleet:
         for slot in self.slots:
             if slot.pending is None and now >= slot.retry_at:
                 slot.pending, slot.waiting = slot.actor.address.remote(), False
+            if slot.down_since is not None and now - slot.down_since > SLOW_RESTART_S:
+                _log(
+                    f"server {slot.index} still down after {SLOW_RESTART_S:g} s: Ray has not restarted its actor "
+                    "(is there a node with --cpus-per-server CPUs free?)"
+                )
+                slot.down_since = None
         refs = [s.pending for s in self.slots if s.pending is not None]
         if not refs:
             time.sleep(timeout)
@@ -226,10 +236,12 @@ class Fleet:
             why = f"exited with code {result}" if isinstance(result, int) else "lost its actor"
             _log(f"server {slot.index} at {slot.address} {why}; Ray restarts it")
             slot.address = None
+            slot.down_since = time.monotonic()
             slot.retry_at = time.monotonic() + RETRY_S
         elif isinstance(result, Exception):
             slot.retry_at = time.monotonic() + RETRY_S  # restarting; ask again
         else:
+            slot.down_since = None
             slot.address, pid, node = result
             slot.starts += 1
             verb = "up" if slot.starts == 1 else "back"
