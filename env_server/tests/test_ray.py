@@ -1,0 +1,305 @@
+"""`python -m env_server.ray`: env servers as Ray actors, their address file, and their restarts.
+
+The launcher runs as a real subprocess, against a local Ray it starts itself or against a
+two-node cluster this module makes with Ray's own test utility (`ray.cluster_utils.Cluster`,
+both nodes on 127.0.0.1 in this machine), which lets a test remove a node. Each test checks
+that the address file lists exactly the servers that are up and that each one steps DST.
+The agent training over the launcher's servers is agent/tests/ray.rs.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Ray on Linux rewrites 127.0.0.1 to the machine's network IP when a driver connects, where a
+# loopback cluster does not listen; read when ray is imported (the launcher sets it the same way).
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+
+import re  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import textwrap  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable, Iterator  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from env_server.client import RemoteEnv  # noqa: E402
+from env_server.ray.launcher import parse, write_address_file  # noqa: E402
+
+UP = re.compile(r"server (\d+) (?:up|back) at (\S+) \(pid (\d+), node (\w+)\)")
+
+
+def read_addresses(path: str) -> list[str]:
+    """The addresses in an address file, as the agent reads it (comments and blank lines skipped)."""
+    try:
+        with open(path) as f:
+            lines = [line.strip() for line in f]
+    except FileNotFoundError:
+        return []
+    return [line for line in lines if line and not line.startswith("#")]
+
+
+def steps(address: str) -> None:
+    """A DST episode's first steps on `address` work."""
+    env = RemoteEnv(address, "dst", seed=0)
+    try:
+        env.reset(seed=0)
+        for _ in range(3):
+            _, reward, _, _, _ = env.step(1)
+            assert np.asarray(reward).shape == (2,)
+    finally:
+        env.close()
+
+
+def wait_for(what: str, predicate: Callable[[], bool], timeout: float) -> float:
+    """Poll `predicate` until it holds; the seconds it took. Fails naming `what`."""
+    started = time.monotonic()
+    while not predicate():
+        assert time.monotonic() - started < timeout, f"{what}: not within {timeout:g} s"
+        time.sleep(0.1)
+    return time.monotonic() - started
+
+
+class Launcher:
+    """`python -m env_server.ray` as a subprocess, its stderr collected line by line."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "env_server.ray", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self.stdout: list[str] = []
+        self._threads = [
+            threading.Thread(target=self._collect, args=(self.proc.stderr, self.lines), daemon=True),
+            threading.Thread(target=self._collect, args=(self.proc.stdout, self.stdout), daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    @staticmethod
+    def _collect(stream, into: list[str]) -> None:
+        for line in stream:
+            into.append(line.rstrip("\n"))
+
+    def servers(self) -> dict[str, tuple[int, int, str]]:
+        """Every server the launcher reported up: address -> (index, pid, node id prefix)."""
+        found = {}
+        for line in list(self.lines):
+            m = UP.search(line)
+            if m:
+                found[m[2]] = (int(m[1]), int(m[3]), m[4])
+        return found
+
+    def wait(self, timeout: float) -> int:
+        code = self.proc.wait(timeout)
+        for t in self._threads:
+            t.join(5)
+        return code
+
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:  # a zombie has exited
+        return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+# --- the command line, without Ray ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--num-servers", "0"], "--num-servers: expected >= 1, got 0"),
+        (["--num-servers", "2", "--server-args", "--port 5000"], "other than --host, --port and --list"),
+        (["--num-servers", "2", "--server-args", "'unclosed"], "--server-args: expected a shell-quoted string"),
+        (["--num-servers", "2", "--"], "expected a COMMAND after '--'"),
+    ],
+)
+def test_bad_flags_are_refused_naming_the_flag(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        parse(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_command_is_everything_after_the_first_separator():
+    opts = parse(["--num-servers", "2", "--server-args", "--max-sessions 8", "--", "agent", "train", "--", "x"])
+    assert opts.server_args == ["--max-sessions", "8"]
+    assert opts.command == ["agent", "train", "--", "x"]
+    assert parse(["--num-servers", "1"]).command == []
+
+
+def test_the_address_file_is_replaced_whole(tmp_path):
+    path = str(tmp_path / "servers.txt")
+    write_address_file(path, ["127.0.0.1:1", "127.0.0.1:2"], 3)
+    assert read_addresses(path) == ["127.0.0.1:1", "127.0.0.1:2"]
+    assert open(path).readline() == "# env servers from python -m env_server.ray: 2 of 3 up\n"
+    write_address_file(path, [], 3)
+    assert read_addresses(path) == []
+    assert os.listdir(tmp_path) == ["servers.txt"]  # no temporary file left behind
+
+
+# --- a local Ray started by the launcher ---------------------------------------------------------
+
+COMMAND = textwrap.dedent(
+    """
+    import os, sys
+    from env_server.client import RemoteEnv
+    assert sys.argv[1:] == ["--server", "file:" + os.environ["ENV_SERVER_ADDRESS_FILE"]], sys.argv
+    path = sys.argv[2].removeprefix("file:")
+    addresses = [l.strip() for l in open(path) if l.strip() and not l.startswith("#")]
+    for a in addresses:
+        env = RemoteEnv(a, "dst")
+        env.reset(seed=0)
+        env.step(1)
+        env.close()
+    print("stepped", len(addresses), "servers", flush=True)
+    sys.exit(7)
+    """
+)
+
+
+def test_a_local_ray_runs_the_command_on_the_servers_and_returns_its_exit_code():
+    launcher = Launcher("--num-servers", "2", "--", sys.executable, "-c", COMMAND)
+    try:
+        code = launcher.wait(120)
+    finally:
+        launcher.stop()
+    assert code == 7, launcher.output()
+    assert launcher.stdout == ["stepped 2 servers"], launcher.output()
+    pids = [pid for _, pid, _ in launcher.servers().values()]
+    assert len(pids) == 2, launcher.output()
+    wait_for("servers stopped with the launcher", lambda: not any(pid_alive(p) for p in pids), 10)
+
+
+def test_ctrl_c_reaches_the_command_once_and_stops_the_servers():
+    sleeper = "import signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(130)); time.sleep(120)"
+    launcher = Launcher("--num-servers", "1", "--", sys.executable, "-c", sleeper)
+    try:
+        wait_for("the server up", lambda: len(launcher.servers()) == 1, 120)
+        time.sleep(1)  # the command has started and set its handler
+        launcher.proc.send_signal(signal.SIGINT)
+        code = launcher.wait(60)
+    finally:
+        launcher.stop()
+    assert code == 130, launcher.output()
+    ((_, pid, _),) = launcher.servers().values()
+    wait_for("the server stopped with the launcher", lambda: not pid_alive(pid), 10)
+
+
+# --- a two-node cluster --------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[object]:
+    """A head and one worker node on 127.0.0.1, 3 logical CPUs each (3 servers fit on either)."""
+    from ray.cluster_utils import Cluster
+
+    started = time.monotonic()
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 3, "include_dashboard": False})
+    c.worker = c.add_node(num_cpus=3)
+    c.wait_for_nodes()
+    print(f"two-node cluster up in {time.monotonic() - started:.1f} s", file=sys.stderr)
+    try:
+        yield c
+    finally:
+        c.shutdown()
+
+
+def test_a_server_that_cannot_start_stops_the_launcher_with_its_error(cluster):
+    launcher = Launcher(
+        "--num-servers", "1", "--address", cluster.address, "--name", "bad", "--server-args", "--max-sessions 0"
+    )
+    try:
+        code = launcher.wait(90)
+    finally:
+        launcher.stop()
+    assert code == 2, launcher.output()
+    assert "server 0 could not start" in launcher.output()
+    assert "--max-sessions >= 1" in launcher.output()
+
+
+def test_servers_come_back_after_a_killed_server_a_killed_actor_and_a_removed_node(cluster, tmp_path):
+    import ray
+
+    path = str(tmp_path / "servers.txt")
+    started = time.monotonic()
+    launcher = Launcher(
+        "--num-servers", "3", "--address", cluster.address, "--address-file", path, "--server-args",
+        "--log-level WARNING",
+    )  # fmt: skip
+    ray.init(address=cluster.address, namespace="env_server", include_dashboard=False, log_to_driver=False)
+    try:
+        wait_for("3 servers in the address file", lambda: len(read_addresses(path)) == 3, 90)
+        print(f"3 servers up {time.monotonic() - started:.1f} s after the launcher started", file=sys.stderr)
+        for address in read_addresses(path):
+            steps(address)
+        servers = launcher.servers()
+        assert sorted(servers) == sorted(read_addresses(path)), launcher.output()
+        worker = cluster.worker.node_id[:12]
+        nodes = {node for _, _, node in servers.values()}
+        assert len(nodes) == 2 and worker in nodes, f"SPREAD left a node empty: {servers}"
+
+        def comes_back(what: str, gone: set[str], timeout: float) -> None:
+            """The file drops `gone` and lists 3 servers again, each of which steps."""
+            took = wait_for(
+                f"3 servers again after {what}",
+                lambda: len(read_addresses(path)) == 3 and not gone & set(read_addresses(path)),
+                timeout,
+            )
+            print(f"{what}: 3 servers listed again after {took:.1f} s", file=sys.stderr)
+            for address in read_addresses(path):
+                steps(address)
+
+        # 1. The server process dies (SIGKILL): its actor ends itself and Ray restarts both.
+        address, (index, pid, _) = next(iter(servers.items()))
+        os.kill(pid, signal.SIGKILL)
+        comes_back("a killed server", {address}, 60)
+
+        # 2. The actor dies (as if its worker crashed): Ray restarts it and it starts a new server.
+        servers = {a: s for a, s in launcher.servers().items() if a in read_addresses(path)}
+        address, (index, pid, _) = next(iter(servers.items()))
+        ray.kill(ray.get_actor(f"env-server-{index}"), no_restart=False)
+        comes_back("a killed actor", {address}, 60)
+        wait_for("the killed actor's server ended with it", lambda: not pid_alive(pid), 10)
+
+        # 3. The worker node leaves the cluster: its servers come back on the head node.
+        servers = {a: s for a, s in launcher.servers().items() if a in read_addresses(path)}
+        on_worker = {a for a, (_, _, node) in servers.items() if node == worker}
+        assert on_worker, servers
+        cluster.remove_node(cluster.worker)
+        comes_back("a removed node", on_worker, 90)
+        assert all(launcher.servers()[a][2] != worker for a in read_addresses(path)), (
+            "a server is still listed on the removed node"
+        )
+
+        pids = [pid for _, pid, _ in launcher.servers().values()]
+        launcher.stop()
+        assert launcher.proc.returncode == 0, launcher.output()
+        wait_for("every server stopped with the launcher", lambda: not any(pid_alive(p) for p in pids), 10)
+    finally:
+        launcher.stop()
+        ray.shutdown()
