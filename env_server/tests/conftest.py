@@ -33,15 +33,18 @@ def server_env() -> dict[str, str]:
 
 
 @contextlib.contextmanager
-def running_server(*args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None) -> Iterator[str]:
-    """Start a server, yield its address from the LISTENING line, stop it at the end."""
-    with server_process(*args, timeout=timeout, extra_env=extra_env) as (_, address):
+def running_server(
+    *args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None, cwd: str | None = None
+) -> Iterator[str]:
+    """Start a server (in `cwd`, default this process's), yield its address from the LISTENING
+    line, stop it at the end."""
+    with server_process(*args, timeout=timeout, extra_env=extra_env, cwd=cwd) as (_, address):
         yield address
 
 
 @contextlib.contextmanager
 def server_process(
-    *args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None
+    *args: str, timeout: float = 30.0, extra_env: dict[str, str] | None = None, cwd: str | None = None
 ) -> Iterator[tuple[subprocess.Popen, str]]:
     """running_server, yielding the server's process too."""
     proc = subprocess.Popen(
@@ -50,6 +53,7 @@ def server_process(
         stderr=subprocess.DEVNULL,
         text=True,
         env={**server_env(), **(extra_env or {})},
+        cwd=cwd,
     )
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.append(proc.stdout.readline()), daemon=True)

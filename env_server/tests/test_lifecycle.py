@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pathlib
 import queue
 import subprocess
 import sys
@@ -136,6 +137,18 @@ def test_version_and_health(address: str, stub) -> None:
         for service in ("", "mo_env.v1.EnvService"):
             status = health.Check(health_pb2.HealthCheckRequest(service=service)).status
             assert status == health_pb2.HealthCheckResponse.SERVING
+
+
+def test_server_started_from_the_repository_root_is_the_installed_package() -> None:
+    # The README and the agent start `python -m env_server` from the repository root, which
+    # holds a folder named env_server/ (this package's project). If that folder were imported
+    # as a namespace package, __init__ would not run (no __version__, no OpenGL backend
+    # choice) and GetVersion would fail as an internal error.
+    root = pathlib.Path(__file__).resolve().parents[2]
+    assert (root / "env_server" / "env_server" / "__init__.py").is_file()
+    with running_server(cwd=str(root)) as address, grpc.insecure_channel(address) as channel:
+        version = env_pb2_grpc.EnvServiceStub(channel).GetVersion(pb.GetVersionRequest())
+    assert version.server_version == env_server.__version__
 
 
 def test_close_session_and_its_deprecated_alias_close(stub) -> None:
