@@ -18,22 +18,13 @@ runs=(
   "configs/mompo/pendulum.toml|12000|50"
   "configs/mompo/humanoid-run.toml|10400|5"
 )
-printf '%-34s %10s %14s %18s %14s  %s\n' config "env steps" "env steps/s" "learner steps/s" "step ms" device
+printf '%-40s %10s %14s %18s %14s  %s\n' config "env steps" "env steps/s" "learner steps/s" "step ms" device
 for run in "${runs[@]}"; do
   IFS='|' read -r config steps period <<<"$run"
   target/release/agent train --config "$config" --total-env-steps "$steps" --set "run.log_period=$period" \
     --set "run.runs_dir=\"$work/runs\"" --set run.eval_episodes=1 "$@" >"$work/train.log" 2>&1 \
     || { tail -20 "$work/train.log"; exit 1; }
   dir=$(ls -td "$work"/runs/*/ | head -1)
-  .venv/bin/python - "$dir" "$config" <<'PY'
-import json, statistics, sys
-dir, config = sys.argv[1:3]
-device = json.load(open(f"{dir}/summary.json"))["learner_device"]
-r = [json.loads(l) for l in open(f"{dir}/learner.jsonl")]
-a, b = r[0], r[-1]
-dt = b["wall_seconds"] - a["wall_seconds"]
-print(f"{config:<34} {b['env_steps'] - a['env_steps']:>10} {(b['env_steps'] - a['env_steps']) / dt:>14.1f}"
-      f" {(b['learner_step'] - a['learner_step']) / dt:>18.1f} {statistics.median(x['step_ms'] for x in r):>14.1f}  {device}")
-PY
+  .venv/bin/python scripts/lib/train_rates.py "$dir" "$config"
   rm -rf "$work/runs"
 done
