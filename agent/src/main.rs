@@ -1,25 +1,22 @@
 //! `agent`: command-line entry point (the only place that uses `anyhow`).
 #![allow(clippy::print_stdout, reason = "a CLI prints its results")]
 
+mod cli;
+
 use std::path::PathBuf;
-use std::time::Instant;
 
 use agent::config::DeviceChoice;
 use agent::env::connection::ConnectionConfig;
-use agent::env::grpc::{EnvClient, RemoteEnv};
+use agent::env::grpc::EnvClient;
 use agent::env::pool::ServerPool;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::env::{Env, MakeOptions, random_action};
 use agent::eval::evaluate_checkpoint;
-use agent::metrics::{format_value, format_vector};
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
-use agent::train::{TrainOptions, TrainSummary, train};
+use agent::train::{TrainOptions, train};
 use agent::video::{VideoOptions, VideoPlan};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
-use rand::SeedableRng;
 
 /// Multi-objective MPO agents for env_server environments.
 #[derive(Debug, Parser)]
@@ -42,7 +39,7 @@ enum Command {
         /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT
         /// (every address of NAME), dns://NAMESERVER/NAME:PORT or file:PATH (one address
         /// per line, re-read when a server is lost); overrides the config's servers.
-        #[arg(long = "server")]
+        #[arg(long = "server", value_name = "ADDRESS", value_parser = server_address)]
         servers: Vec<String>,
         #[command(flatten)]
         connection: ConnectionArgs,
@@ -71,7 +68,7 @@ enum Command {
         /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT,
         /// dns://NAMESERVER/NAME:PORT or file:PATH; default: the base config's, or a
         /// local server.
-        #[arg(long = "server")]
+        #[arg(long = "server", value_name = "ADDRESS", value_parser = server_address)]
         servers: Vec<String>,
         #[command(flatten)]
         connection: ConnectionArgs,
@@ -95,7 +92,7 @@ enum Command {
         /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT,
         /// dns://NAMESERVER/NAME:PORT or file:PATH (the first address found is used);
         /// default: a local server.
-        #[arg(long = "server")]
+        #[arg(long = "server", value_name = "ADDRESS", value_parser = server_address)]
         servers: Vec<String>,
         /// How to reach --server (the run's own env.connection is not used).
         #[command(flatten)]
@@ -112,7 +109,7 @@ enum Command {
         /// Server address host:port, https://host:port, dns:NAME:PORT or
         /// file:PATH (its first server). Omitted: start a local server
         /// for the listing.
-        #[arg(long)]
+        #[arg(long, value_name = "ADDRESS", value_parser = server_address)]
         server: Option<String>,
         #[command(flatten)]
         connection: ConnectionArgs,
@@ -122,7 +119,7 @@ enum Command {
         /// Server address host:port, https://host:port, dns:NAME:PORT or
         /// file:PATH (its first server). Omitted: start a local server
         /// on 127.0.0.1.
-        #[arg(long)]
+        #[arg(long, value_name = "ADDRESS", value_parser = server_address)]
         server: Option<String>,
         #[command(flatten)]
         connection: ConnectionArgs,
@@ -207,6 +204,14 @@ impl VideoArgs {
     }
 }
 
+/// `--server`'s value, checked when the command line is read, so that a bad one is
+/// reported against the flag (clap names it) rather than the config field it replaces.
+fn server_address(text: &str) -> Result<String, String> {
+    agent::env::discovery::ServerSource::parse(text)
+        .map(|_| text.to_string())
+        .map_err(|e| e.to_string())
+}
+
 fn main() -> Result<()> {
     // Before the runtime's threads exist: mallopt's settings are process-wide.
     agent::device::tune_allocator();
@@ -272,7 +277,7 @@ async fn run() -> Result<()> {
                 local.stop().await?;
             }
             let summary = summary?;
-            print_summary(&summary);
+            cli::report::train(&summary);
             if summary.interrupted.is_some() {
                 // The shell's convention for a job ended by SIGINT.
                 std::process::exit(130);
@@ -305,82 +310,7 @@ async fn run() -> Result<()> {
                 local.stop().await?;
             }
             let s = result?;
-            let names = s.objectives.join(", ");
-            println!(
-                "\nsweep {} ({} runs, {:.0} s wall)",
-                s.dir.display(),
-                s.points.len(),
-                s.wall_seconds
-            );
-            println!(
-                "  {:<44} {:>5}  eval return [{names}]  front",
-                "setting", "seed"
-            );
-            for p in &s.points {
-                let setting: Vec<String> =
-                    p.setting.iter().map(|(k, v)| format!("{k}={v}")).collect();
-                let mark = if p.on_front { "*" } else { "" };
-                println!(
-                    "  {:<44} {:>5}  {:<28} {mark}",
-                    setting.join(" "),
-                    p.seed,
-                    format_vector(&p.eval_return)
-                );
-            }
-            if s.seed_fronts.len() > 1 {
-                println!("  across seeds: median [min .. max] per objective");
-                for spread in &s.settings {
-                    let setting: Vec<String> = spread
-                        .setting
-                        .iter()
-                        .map(|(k, v)| format!("{k}={v}"))
-                        .collect();
-                    let cells: Vec<String> = (0..spread.median.len())
-                        .map(|i| {
-                            format!(
-                                "{} [{} .. {}]",
-                                format_value(spread.median[i]),
-                                format_value(spread.min[i]),
-                                format_value(spread.max[i])
-                            )
-                        })
-                        .collect();
-                    println!(
-                        "  {:<44} {:>5}  {}",
-                        setting.join(" "),
-                        format!("x{}", spread.seeds),
-                        cells.join("  ")
-                    );
-                }
-                let hv: Vec<f64> = s.seed_fronts.iter().map(|f| f.hypervolume).collect();
-                let each: Vec<String> = s
-                    .seed_fronts
-                    .iter()
-                    .map(|f| format!("seed {} {:.2}", f.seed, f.hypervolume))
-                    .collect();
-                println!(
-                    "  hypervolume per seed: {}; median {:.2}, range [{:.2} .. {:.2}]",
-                    each.join(", "),
-                    agent::sweep::seeds::median(&hv),
-                    hv.iter().copied().fold(f64::INFINITY, f64::min),
-                    hv.iter().copied().fold(f64::NEG_INFINITY, f64::max)
-                );
-            }
-            let reference = format_vector(&s.reference_point);
-            println!(
-                "  hypervolume {:.2} (all runs; undiscounted, reference {reference}); EUM {:.3}",
-                s.hypervolume, s.expected_utility
-            );
-            if let (Some(best), Some(igd)) = (s.true_hypervolume, s.igd) {
-                println!(
-                    "  true front: hypervolume {best:.2} ({:.0}% reached); IGD {igd:.3}",
-                    100.0 * s.hypervolume / best
-                );
-            }
-            println!(
-                "  wrote points.csv front.csv summary.json front.png/svg in {}",
-                s.dir.display()
-            );
+            cli::report::sweep(&s);
         }
         Command::Eval {
             checkpoint,
@@ -401,34 +331,11 @@ async fn run() -> Result<()> {
                 local.stop().await?;
             }
             let r = report?;
-            println!(
-                "checkpoint {} ({} episodes, deterministic policy)",
-                r.checkpoint.display(),
-                r.episodes.len()
-            );
-            println!("  objectives [{}]", r.objectives.join(", "));
-            for e in &r.episodes {
-                println!(
-                    "  env {:>2} length {:>5}  return {}  discounted {}",
-                    e.env_index,
-                    e.length,
-                    format_vector(&e.episode_return),
-                    format_vector(&e.discounted_return)
-                );
-            }
-            println!(
-                "  mean return {}  mean discounted return (γ={}) {}",
-                format_vector(&r.mean_return),
-                r.discount,
-                format_vector(&r.mean_discounted_return)
-            );
-            if let Some(v) = &r.video {
-                println!("  wrote {} ({} frames)", v.path.display(), v.frames);
-            }
+            cli::report::eval(&r);
         }
         Command::Envs { server, connection } => {
             let (client, local) = connect(server, connection).await?;
-            print_envs(&client).await?;
+            cli::demo::list_envs(&client).await?;
             if let Some(local) = local {
                 local.stop().await?;
             }
@@ -443,7 +350,7 @@ async fn run() -> Result<()> {
         } => {
             let (client, local) = connect(server, connection).await?;
             for env_id in &envs {
-                demo(&client, env_id, num_envs, episodes, seed).await?;
+                cli::demo::run(&client, env_id, num_envs, episodes, seed).await?;
             }
             if let Some(local) = local {
                 local.stop().await?;
@@ -504,150 +411,4 @@ async fn server_addresses(
         .context("starting a local env_server")?;
     tracing::info!(address = local.address(), "started local env_server");
     Ok((vec![local.address().to_string()], Some(local)))
-}
-
-fn print_summary(s: &TrainSummary) {
-    let names = s.objectives.join(", ");
-    println!("\nrun {}", s.run_dir.display());
-    println!(
-        "  env steps {}  learner steps {}  episodes {}  wall {:.1} s  learner on {}",
-        s.env_steps, s.learner_steps, s.episodes, s.wall_seconds, s.learner_device
-    );
-    println!("  objectives             [{names}]");
-    if let Some(v) = &s.eval_video {
-        println!(
-            "  evaluation video       {} ({} frames)",
-            v.path.display(),
-            v.frames
-        );
-    }
-    println!(
-        "  recent training return {}",
-        format_vector(&s.recent_train_return)
-    );
-    let eta: Vec<f64> = s.temperature.iter().map(|&t| f64::from(t)).collect();
-    println!("  temperatures eta_k     {}", format_vector(&eta));
-    if let Some(signal) = &s.interrupted {
-        println!(
-            "  interrupted by {signal}: no evaluation; continue with `agent train --resume {}`",
-            s.run_dir.display()
-        );
-    }
-    println!(
-        "  eval return ({} episodes, deterministic policy)",
-        s.eval_episodes.len()
-    );
-    println!("    undiscounted         {}", format_vector(&s.eval_return));
-    println!(
-        "    discounted (γ={})  {}",
-        s.eval_discount,
-        format_vector(&s.eval_discounted_return)
-    );
-    if !s.solve_threshold.is_empty() {
-        let rule: Vec<String> = s
-            .solve_threshold
-            .iter()
-            .map(|(k, v)| format!("{k} >= {v}"))
-            .collect();
-        match &s.solved {
-            Some(r) => println!(
-                "  solved ({}, mean of {} training episodes) at {} env steps, {:.1} s: {}",
-                rule.join(", "),
-                agent::solve::SOLVE_WINDOW,
-                r.env_steps,
-                r.wall_seconds,
-                format_vector(&r.running_mean)
-            ),
-            None => println!(
-                "  not solved ({}, mean of {} training episodes)",
-                rule.join(", "),
-                agent::solve::SOLVE_WINDOW
-            ),
-        }
-    }
-    println!(
-        "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg events.out.tfevents.* checkpoints/"
-    );
-}
-
-async fn print_envs(client: &EnvClient) -> Result<()> {
-    let version = client.version().await?;
-    println!(
-        "env_server {} (protocol {}) at {}",
-        version.server_version,
-        version.protocol_version,
-        client.address()
-    );
-    for env in client.list_envs().await? {
-        println!("\n{:<16} {}", env.env_id, env.description);
-        for o in env.objectives {
-            println!(
-                "    {:<14} [{}, {}]  {}",
-                o.name, o.min, o.max, o.description
-            );
-        }
-    }
-    Ok(())
-}
-
-async fn demo(
-    client: &EnvClient,
-    env_id: &str,
-    num_envs: usize,
-    episodes: usize,
-    seed: u64,
-) -> Result<()> {
-    let options = MakeOptions {
-        seed: Some(seed),
-        ..MakeOptions::new(env_id, num_envs)
-    };
-    let mut env: RemoteEnv = client
-        .make(&options)
-        .await
-        .with_context(|| format!("making {env_id}"))?;
-    let spec = env.spec().clone();
-    let names = spec.objective_names().join(", ");
-    println!(
-        "\n{env_id}: B={num_envs}, objectives [{names}], discount {}",
-        spec.discount
-    );
-    env.reset(&[], &[]).await?;
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let bar = ProgressBar::new(episodes as u64).with_style(
-        ProgressStyle::with_template(
-            "{spinner} {msg:>14} episodes {pos}/{len} [{elapsed}] {per_sec}",
-        )
-        .expect("valid template"),
-    );
-    bar.set_message(env_id.to_string());
-    let started = Instant::now();
-    let (mut finished, mut steps) = (Vec::new(), 0u64);
-    while finished.len() < episodes {
-        let result = env
-            .step(&random_action(&spec.action_space, num_envs, &mut rng))
-            .await?;
-        steps += num_envs as u64;
-        for episode in result.episodes {
-            bar.inc(1);
-            finished.push(episode);
-        }
-    }
-    bar.finish_and_clear();
-    let elapsed = started.elapsed().as_secs_f64();
-    println!("  episode  env  length  return [{names}]  discounted return");
-    for (i, e) in finished.iter().take(episodes).enumerate() {
-        println!(
-            "  {i:>7}  {:>3}  {:>6}  {:<28}  {}",
-            e.env_index,
-            e.length,
-            format_vector(&e.episode_return),
-            format_vector(&e.discounted_return)
-        );
-    }
-    println!(
-        "  {steps} env steps in {elapsed:.2} s ({:.0} steps/s)",
-        steps as f64 / elapsed
-    );
-    env.close().await?;
-    Ok(())
 }
