@@ -4,6 +4,8 @@
 //! launcher rewrites. Actors spread over the servers, a killed server's actors move
 //! to the others, and the run goes on to its budget.
 
+mod pki;
+
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::Path;
 use std::sync::Arc;
@@ -22,7 +24,6 @@ use hickory_server::proto::rr::{LowerName, Name, RData, Record};
 use hickory_server::store::in_memory::InMemoryZoneHandler;
 use hickory_server::zone_handler::{AxfrPolicy, Catalog, ZoneType};
 use integration_tests::smoke_config;
-use rcgen::{BasicConstraints, CertificateParams, IsCa, Issuer, KeyPair};
 
 /// The name the DNS server answers.
 const NAME: &str = "envs.test";
@@ -258,26 +259,14 @@ async fn a_rewritten_file_moves_the_actors_of_a_killed_server() {
 async fn resolved_addresses_keep_the_name_for_tls_and_bad_names_fail_clearly() {
     let dir = tempfile::tempdir().unwrap();
     // A certificate for the name only: a check against the IP dialled would fail.
-    let ca_key = KeyPair::generate().unwrap();
-    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
-    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
-    let issuer = Issuer::new(ca_params, ca_key);
-    let server_key = KeyPair::generate().unwrap();
-    let server_cert = CertificateParams::new(vec![NAME.to_string()])
-        .unwrap()
-        .signed_by(&server_key, &issuer)
-        .unwrap();
+    let pki = pki::write_pki(dir.path(), "disc", &[NAME]);
+    let path = |p: &Path| p.display().to_string();
+    let (ca, cert, key) = (path(&pki.ca), path(&pki.server_cert), path(&pki.server_key));
     let write = |name: &str, text: String| {
         let path = dir.path().join(name);
         std::fs::write(&path, text).unwrap();
         path.display().to_string()
     };
-    let (ca, cert, key) = (
-        write("ca.pem", ca_cert.pem()),
-        write("server.pem", server_cert.pem()),
-        write("server.key", server_key.serialize_pem()),
-    );
     let tokens = write("tokens", "learner:discovery-token-0123456789\n".into());
     let ips = [Ipv4Addr::new(127, 0, 0, 5), Ipv4Addr::new(127, 0, 0, 6)];
     let mut envs = Vec::new();

@@ -5,6 +5,8 @@
 //! The CA, certificates and tokens are made here at run time (rcgen); no key is
 //! committed.
 
+mod pki;
+
 use std::path::{Path, PathBuf};
 
 use agent::env::connection::ConnectionConfig;
@@ -14,52 +16,9 @@ use agent::error::{EnvError, StatusKind};
 use agent::eval::evaluate_checkpoint;
 use agent::train::{TrainOptions, train};
 use integration_tests::smoke_config;
-use rcgen::{BasicConstraints, CertificateParams, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair};
+use pki::{Pki, write_client_cert, write_pki};
 
 const TOKEN: &str = "learner:e2e-token-0123456789abcdef";
-
-/// Files of one throwaway PKI: a CA and a server certificate for 127.0.0.1.
-struct Pki {
-    ca: PathBuf,
-    server_cert: PathBuf,
-    server_key: PathBuf,
-    issuer: Issuer<'static, KeyPair>,
-}
-
-fn write_pki(dir: &Path, name: &str) -> Pki {
-    let ca_key = KeyPair::generate().unwrap();
-    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
-    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
-    let issuer = Issuer::new(ca_params, ca_key);
-    let server_key = KeyPair::generate().unwrap();
-    let server_cert = CertificateParams::new(vec!["127.0.0.1".to_string()])
-        .unwrap()
-        .signed_by(&server_key, &issuer)
-        .unwrap();
-    let pki = Pki {
-        ca: dir.join(format!("{name}-ca.pem")),
-        server_cert: dir.join(format!("{name}-server.pem")),
-        server_key: dir.join(format!("{name}-server.key")),
-        issuer,
-    };
-    std::fs::write(&pki.ca, ca_cert.pem()).unwrap();
-    std::fs::write(&pki.server_cert, server_cert.pem()).unwrap();
-    std::fs::write(&pki.server_key, server_key.serialize_pem()).unwrap();
-    pki
-}
-
-/// A client certificate the PKI's CA signed, as (certificate, key) files.
-fn write_client_cert(pki: &Pki, dir: &Path) -> (PathBuf, PathBuf) {
-    let key = KeyPair::generate().unwrap();
-    let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
-    params.extended_key_usages = vec![ExtendedKeyUsagePurpose::ClientAuth];
-    let cert = params.signed_by(&key, &pki.issuer).unwrap();
-    let paths = (dir.join("client.pem"), dir.join("client.key"));
-    std::fs::write(&paths.0, cert.pem()).unwrap();
-    std::fs::write(&paths.1, key.serialize_pem()).unwrap();
-    paths
-}
 
 async fn tls_server(pki: &Pki, tokens: &Path) -> LocalServer {
     tls_server_with(pki, tokens, &[]).await
@@ -94,7 +53,7 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_agent_trains_and_evaluates_through_two_tls_servers_with_a_token() {
     let dir = tempfile::tempdir().unwrap();
-    let pki = write_pki(dir.path(), "good");
+    let pki = write_pki(dir.path(), "good", &["127.0.0.1"]);
     let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
     let (a, b) = (
         tls_server(&pki, &tokens).await,
@@ -134,8 +93,8 @@ async fn the_agent_trains_and_evaluates_through_two_tls_servers_with_a_token() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_wrong_token_or_a_foreign_ca_fails_clearly() {
     let dir = tempfile::tempdir().unwrap();
-    let pki = write_pki(dir.path(), "good");
-    let other = write_pki(dir.path(), "other");
+    let pki = write_pki(dir.path(), "good", &["127.0.0.1"]);
+    let other = write_pki(dir.path(), "other", &["127.0.0.1"]);
     let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
     let server = tls_server(&pki, &tokens).await;
     let address = format!("https://{}", server.address());
@@ -198,7 +157,7 @@ async fn a_wrong_token_or_a_foreign_ca_fails_clearly() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mutual_tls_needs_the_client_certificate() {
     let dir = tempfile::tempdir().unwrap();
-    let pki = write_pki(dir.path(), "good");
+    let pki = write_pki(dir.path(), "good", &["127.0.0.1"]);
     let tokens = write(dir.path(), "tokens", &format!("{TOKEN}\n"));
     let client_ca = ["--tls-client-ca".to_string(), pki.ca.display().to_string()];
     let server = tls_server_with(&pki, &tokens, &client_ca).await;
