@@ -4,9 +4,8 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims};
-use agent::config::{LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
-use agent::nets::ActionKind;
+use agent::algo::Learner;
+use agent::config::Algorithm;
 use tch::{Device, Kind, Tensor};
 
 /// One test at a time (`common::exclusive_rng`), from seed 0.
@@ -19,41 +18,13 @@ fn exclusive() -> std::sync::MutexGuard<'static, ()> {
 const STATES: i64 = 32;
 
 fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> Learner {
-    let mut cfg = LearnerConfig {
-        objectives: vec![
-            ObjectiveConfig {
-                name: "right".into(),
-                epsilon: eps[0],
-                source: ObjectiveSource::Learned,
-            },
-            ObjectiveConfig {
-                name: "left".into(),
-                epsilon: eps[1],
-                source: ObjectiveSource::Learned,
-            },
-        ],
-        network: NetworkConfig {
-            policy_layers: vec![16],
-            critic_layers: vec![8],
-            tanh_on_action_mean: false,
-            ..NetworkConfig::default()
-        },
-        seed: 1,
-        ..LearnerConfig::default()
-    };
+    let mut cfg = common::bandit_config(Algorithm::MoMpo, eps, vec![8], 1);
     cfg.mpo.learning_rate = 3e-3;
     // Faster duals than Acme's 1e-2 so eta_k settles within a few hundred steps.
     cfg.mpo.dual_learning_rate = 0.1;
     cfg.mpo.beta_mean = beta_mean;
     cfg.mpo.target_update_period = target_period;
-    let dims = LearnerDims {
-        action_bounds: None,
-        obs_dim: 1,
-        action: ActionKind::Continuous { dim: 1 },
-        reward_names: vec!["right".into(), "left".into()],
-        obs_leaves: Vec::new(),
-    };
-    Learner::new(cfg, dims, Device::Cpu).unwrap()
+    common::bandit_learner(cfg)
 }
 
 fn q_values(actions: &Tensor) -> Tensor {

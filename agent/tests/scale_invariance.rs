@@ -11,11 +11,8 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::{
-    LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource, TemperatureParameterization,
-};
-use agent::nets::ActionKind;
+use agent::algo::{Learner, SnippetBatch};
+use agent::config::{Algorithm, TemperatureParameterization};
 use tch::{Device, Kind, Tensor};
 
 const STATES: i64 = 32;
@@ -26,25 +23,7 @@ const TAIL: usize = 200;
 
 fn bandit(kind: TemperatureParameterization) -> Learner {
     tch::manual_seed(0);
-    let mut cfg = LearnerConfig {
-        objectives: ["right", "left"]
-            .iter()
-            .zip([0.04, 0.01])
-            .map(|(name, epsilon)| ObjectiveConfig {
-                name: (*name).into(),
-                epsilon,
-                source: ObjectiveSource::Learned,
-            })
-            .collect(),
-        network: NetworkConfig {
-            policy_layers: vec![16],
-            critic_layers: vec![32, 32],
-            tanh_on_action_mean: false,
-            ..NetworkConfig::default()
-        },
-        seed: 1,
-        ..LearnerConfig::default()
-    };
+    let mut cfg = common::bandit_config(Algorithm::MoMpo, [0.04, 0.01], vec![32, 32], 1);
     cfg.mpo.learning_rate = 3e-3;
     cfg.mpo.dual_learning_rate = 0.1;
     cfg.mpo.temperature_parameterization = kind;
@@ -52,14 +31,7 @@ fn bandit(kind: TemperatureParameterization) -> Learner {
     cfg.mpo.batch_size = STATES as usize;
     cfg.mpo.target_update_period = 10;
     cfg.mpo.adam_eps = 1e-8;
-    let dims = LearnerDims {
-        action_bounds: None,
-        obs_dim: 1,
-        action: ActionKind::Continuous { dim: 1 },
-        reward_names: vec!["right".into(), "left".into()],
-        obs_leaves: Vec::new(),
-    };
-    Learner::new(cfg, dims, Device::Cpu).unwrap()
+    common::bandit_learner(cfg)
 }
 
 fn obs(n: i64) -> Tensor {

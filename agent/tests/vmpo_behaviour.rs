@@ -9,45 +9,21 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::{Algorithm, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource};
-use agent::nets::ActionKind;
+use agent::algo::{Learner, SnippetBatch};
+use agent::config::Algorithm;
 use tch::{Device, Kind, Tensor};
 
 const UNROLLS: i64 = 64;
 
 fn bandit(eps: [f64; 2]) -> Learner {
-    let objective = |name: &str, epsilon| ObjectiveConfig {
-        name: name.into(),
-        epsilon,
-        source: ObjectiveSource::Learned,
-    };
-    let mut cfg = LearnerConfig {
-        algorithm: Algorithm::MoVmpo,
-        objectives: vec![objective("right", eps[0]), objective("left", eps[1])],
-        network: NetworkConfig {
-            policy_layers: vec![16],
-            critic_layers: vec![16],
-            tanh_on_action_mean: false,
-            ..NetworkConfig::default()
-        },
-        seed: 3,
-        ..LearnerConfig::default()
-    };
+    let mut cfg = common::bandit_config(Algorithm::MoVmpo, eps, vec![16], 3);
     cfg.vmpo.unroll_length = 1;
     cfg.vmpo.batch_size = UNROLLS as usize;
     cfg.vmpo.learning_rate = 3e-3;
     cfg.vmpo.dual_learning_rate = 0.1;
     cfg.vmpo.beta_mean = 0.01;
     cfg.vmpo.target_update_period = 10;
-    let dims = LearnerDims {
-        action_bounds: None,
-        obs_dim: 1,
-        action: ActionKind::Continuous { dim: 1 },
-        reward_names: vec!["right".into(), "left".into()],
-        obs_leaves: Vec::new(),
-    };
-    Learner::new(cfg, dims, Device::Cpu).unwrap()
+    common::bandit_learner(cfg)
 }
 
 /// One on-policy batch: actions from the current policy, their rewards, terminal.

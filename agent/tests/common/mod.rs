@@ -176,3 +176,47 @@ pub fn movmpo_mocap_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> Lea
     };
     Learner::new(cfg, dims, Device::Cpu).unwrap()
 }
+
+/// The one-state bandit of the behavioural tests: a 1-D continuous action, no
+/// observation to speak of (one zero), and two learned objectives "right" and "left"
+/// with the given epsilons, on a small policy (one layer of 16, untanh'd mean) and a
+/// critic of `critic_layers`. Each test sets its algorithm's own rates on the result.
+pub fn bandit_config(
+    algorithm: Algorithm,
+    eps: [f64; 2],
+    critic_layers: Vec<i64>,
+    seed: u64,
+) -> LearnerConfig {
+    LearnerConfig {
+        algorithm,
+        objectives: ["right", "left"]
+            .into_iter()
+            .zip(eps)
+            .map(|(name, epsilon)| ObjectiveConfig {
+                name: name.into(),
+                epsilon,
+                source: ObjectiveSource::Learned,
+            })
+            .collect(),
+        network: NetworkConfig {
+            policy_layers: vec![16],
+            critic_layers,
+            tanh_on_action_mean: false,
+            ..NetworkConfig::default()
+        },
+        seed,
+        ..LearnerConfig::default()
+    }
+}
+
+/// A learner for `bandit_config`'s bandit.
+pub fn bandit_learner(cfg: LearnerConfig) -> Learner {
+    let dims = LearnerDims {
+        action_bounds: None,
+        obs_dim: 1,
+        action: ActionKind::Continuous { dim: 1 },
+        reward_names: vec!["right".into(), "left".into()],
+        obs_leaves: Vec::new(),
+    };
+    Learner::new(cfg, dims, Device::Cpu).unwrap()
+}
