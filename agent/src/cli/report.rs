@@ -3,7 +3,7 @@
 
 use agent::eval::EvalReport;
 use agent::metrics::{format_value, format_vector};
-use agent::sweep::SweepSummary;
+use agent::sweep::{SweepSummary, setting_label};
 use agent::train::TrainSummary;
 
 /// `agent train`'s closing summary.
@@ -85,11 +85,10 @@ pub(crate) fn sweep(s: &SweepSummary) {
         "setting", "seed"
     );
     for p in &s.points {
-        let setting: Vec<String> = p.setting.iter().map(|(k, v)| format!("{k}={v}")).collect();
         let mark = if p.on_front { "*" } else { "" };
         println!(
             "  {:<44} {:>5}  {:<28} {mark}",
-            setting.join(" "),
+            setting_label(&p.setting),
             p.seed,
             format_vector(&p.eval_return)
         );
@@ -97,11 +96,6 @@ pub(crate) fn sweep(s: &SweepSummary) {
     if s.seed_fronts.len() > 1 {
         println!("  across seeds: median [min .. max] per objective");
         for spread in &s.settings {
-            let setting: Vec<String> = spread
-                .setting
-                .iter()
-                .map(|(k, v)| format!("{k}={v}"))
-                .collect();
             let cells: Vec<String> = (0..spread.median.len())
                 .map(|i| {
                     format!(
@@ -114,7 +108,7 @@ pub(crate) fn sweep(s: &SweepSummary) {
                 .collect();
             println!(
                 "  {:<44} {:>5}  {}",
-                setting.join(" "),
+                setting_label(&spread.setting),
                 format!("x{}", spread.seeds),
                 cells.join("  ")
             );

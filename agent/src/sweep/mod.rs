@@ -74,9 +74,11 @@ pub struct SweepSummary {
     pub wall_seconds: f64,
 }
 
-fn setting_label(s: &BTreeMap<String, f64>) -> String {
+/// `pain=0.9 task=0.1`: each value rounded to 12 decimals, so that a complemented weight
+/// (1 - 0.9) does not print as 0.09999999999999998.
+pub fn setting_label(s: &BTreeMap<String, f64>) -> String {
     s.iter()
-        .map(|(k, v)| format!("{k}={v}"))
+        .map(|(k, v)| format!("{k}={}", (v * 1e12).round() / 1e12))
         .collect::<Vec<_>>()
         .join(" ")
 }
@@ -225,4 +227,18 @@ pub async fn sweep(
     };
     report::write_outputs(sweep, &summary)?;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn labels_round_complemented_weights() {
+        // 1.0 - 0.9 is 0.09999999999999998 in f64; the label shows the weight meant.
+        let s = BTreeMap::from([("pain".to_string(), 0.9), ("task".to_string(), 1.0 - 0.9)]);
+        assert_eq!(setting_label(&s), "pain=0.9 task=0.1");
+        let exact = BTreeMap::from([("task".to_string(), 0.01), ("pain".to_string(), 0.0015)]);
+        assert_eq!(setting_label(&exact), "pain=0.0015 task=0.01");
+    }
 }

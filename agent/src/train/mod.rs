@@ -7,17 +7,20 @@
 //! curves (`curves.png`, `curves.svg`). Ctrl-C or SIGTERM stops it early: the learner
 //! writes a checkpoint and the run still writes its summary (marked `interrupted`, no
 //! evaluation), curves and TensorBoard events; a second Ctrl-C exits at once.
+//!
+//! `setup` opens the run and builds its schedule, `progress` draws the bar and takes
+//! the signals, `finish` evaluates and writes the reports; this module starts the
+//! actors and the learner and waits for them.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::Instant;
 
 use serde::Serialize;
 use tch::Device;
 use tokio::sync::watch;
 
 use crate::actor::{ActorContext, run_actor};
-use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
@@ -25,23 +28,23 @@ use crate::env::grpc::EnvClient;
 use crate::env::pool::{ActorServers, ServerPool};
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
-use crate::eval::{evaluate, evaluate_recorded};
-use crate::learner::{LearnerContext, LearnerLoopError, latest_checkpoint, run_learner};
-use crate::metrics::{RunFiles, write_json_atomic};
-use crate::nets::{ActionKind, ActorPolicy};
+use crate::learner::{LearnerContext, LearnerLoopError, run_learner};
+use crate::metrics::RunFiles;
+use crate::nets::ActorPolicy;
 use crate::plot::PlotError;
-use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::run_config::TrainConfig;
-use crate::schedule::{Counters, Pace, Schedule};
-use crate::solve::{SolveRecord, SolveTracker};
+use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
 use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
 
 mod curves;
+mod finish;
 mod progress;
+mod setup;
 
-use curves::plot_curves;
-use progress::{interrupt_signal, progress_bar, progress_message};
+use finish::{final_evaluation, write_reports};
+use progress::{progress_bar, spawn_ticker};
+use setup::{Opened, open_run, schedule_for};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -157,71 +160,17 @@ pub async fn train(
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
     let device = choose_device(&cfg.learner, &dims)?;
-    let (run_dir, learner, counters) = match &options.resume {
-        Some(dir) => {
-            let (ckpt, progress) = latest_checkpoint(dir)?;
-            let learner = Learner::load_checkpoint(&ckpt, device)?;
-            tracing::info!(checkpoint = %ckpt.display(), env_steps = progress.env_steps, "resuming");
-            let counters = Counters {
-                env_steps: progress.env_steps,
-                learner_steps: progress.learner_steps,
-                episodes: progress.episodes,
-                ..Counters::default()
-            };
-            (dir.clone(), learner, counters)
-        }
-        None => {
-            let dir = new_run_dir(&cfg);
-            std::fs::create_dir_all(&dir).map_err(io(&dir))?;
-            let text = toml::to_string_pretty(&cfg).map_err(|e| TrainError::Io {
-                path: dir.join("config.toml"),
-                source: std::io::Error::other(e),
-            })?;
-            std::fs::write(dir.join("config.toml"), text).map_err(io(&dir))?;
-            (
-                dir,
-                Learner::new(cfg.learner.clone(), dims.clone(), device)?,
-                Counters::default(),
-            )
-        }
-    };
+    let Opened {
+        run_dir,
+        learner,
+        counters,
+    } = open_run(&cfg, options.resume.as_deref(), &dims, device)?;
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
     if options.resume.is_some() {
         files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
     }
-    let settings = cfg.learner.shared();
-    let on_policy = cfg.learner.algorithm.on_policy();
-    let layout = SnippetLayout {
-        length: settings.sequence_length,
-        obs_dim: dims.obs_dim as usize,
-        action_width: match dims.action {
-            ActionKind::Continuous { dim } => dim as usize,
-            ActionKind::Discrete { .. } => 1,
-        },
-        num_rewards: objectives.len(),
-        discrete: matches!(dims.action, ActionKind::Discrete { .. }),
-        on_policy,
-    };
-    let (capacity, pace) = if on_policy {
-        // The queue never holds much more than one batch: actors wait for the learner.
-        (
-            usize::MAX,
-            Pace::OnPolicy {
-                batch_size: settings.batch_size,
-            },
-        )
-    } else {
-        let pace = Pace::Ratio {
-            learner_steps_per_env_step: cfg.run.learner_steps_per_env_step,
-            min_replay_transitions: cfg.run.min_replay_transitions.max(settings.sequence_length),
-        };
-        (cfg.learner.mpo.replay_capacity, pace)
-    };
-    let replay = SnippetReplay::new(layout, capacity, cfg.seed);
-    let mut solve = SolveTracker::new(&cfg.run.solve_threshold, &objectives)?;
-    solve.stop_on_solve = cfg.run.stop_on_solve;
-    let counters = Counters { solve, ..counters };
-    let schedule = Arc::new(Schedule::new(replay, pace, counters));
+    let (schedule, layout) = schedule_for(&cfg, &dims, &objectives, counters)?;
+    let schedule = Arc::new(schedule);
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
     let latest = Arc::new(Mutex::new(None));
 
@@ -289,43 +238,12 @@ pub async fn train(
     });
 
     let bar = progress_bar(options.progress, &cfg, &schedule);
-    let ticker = {
-        let (schedule, latest, bar, names) = (
-            schedule.clone(),
-            latest.clone(),
-            bar.clone(),
-            objectives.clone(),
-        );
-        tokio::spawn(async move {
-            let mut signal = std::pin::pin!(interrupt_signal());
-            let mut signalled = false;
-            loop {
-                tokio::select! {
-                    _ = tokio::time::sleep(Duration::from_millis(250)) => {}
-                    name = &mut signal, if !signalled => {
-                        signalled = true;
-                        tracing::warn!("{name}: stopping after a final checkpoint and report (Ctrl-C again to exit at once)");
-                        schedule.interrupt(name);
-                        tokio::spawn(async {
-                            if tokio::signal::ctrl_c().await.is_ok() {
-                                std::process::exit(130);
-                            }
-                        });
-                    }
-                }
-                let c = schedule.counters();
-                bar.set_position(c.env_steps);
-                bar.set_message(progress_message(
-                    &c,
-                    &names,
-                    latest.lock().unwrap_or_else(|e| e.into_inner()).as_ref(),
-                ));
-                if c.stop {
-                    break;
-                }
-            }
-        })
-    };
+    let ticker = spawn_ticker(
+        schedule.clone(),
+        latest.clone(),
+        bar.clone(),
+        objectives.clone(),
+    );
 
     for actor in actors {
         let _ = actor.await;
@@ -353,33 +271,15 @@ pub async fn train(
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
-    // Whoever stopped the run wants it to end soon: no evaluation episodes then.
-    let (eval, eval_video) = match (&counters.interrupted, &options.video) {
-        (Some(_), _) => (Vec::new(), None),
-        (None, Some(plan)) => {
-            let path = run_dir.join("videos").join("final.mp4");
-            let (eval, video) = evaluate_recorded(
-                &servers.live().await?.client,
-                &cfg,
-                policy,
-                cfg.run.eval_episodes,
-                &path,
-                &plan.options,
-            )
-            .await?;
-            (eval, Some(video))
-        }
-        (None, None) => (
-            evaluate(
-                &servers.live().await?.client,
-                &cfg,
-                policy,
-                cfg.run.eval_episodes,
-            )
-            .await?,
-            None,
-        ),
-    };
+    let (eval, eval_video) = final_evaluation(
+        &cfg,
+        &servers,
+        policy,
+        counters.interrupted.is_some(),
+        options.video.as_ref(),
+        &run_dir,
+    )
+    .await?;
     let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let summary = TrainSummary {
         run_dir: run_dir.clone(),
@@ -401,17 +301,7 @@ pub async fn train(
         eval_video,
         actor_servers: servers.actor_servers(),
     };
-    if !summary.eval_episodes.is_empty() {
-        let mut scalars = files.per_objective("eval/return", &summary.eval_return);
-        scalars
-            .extend(files.per_objective("eval/discounted_return", &summary.eval_discounted_return));
-        files
-            .scalars(summary.env_steps, &scalars)
-            .map_err(io(&run_dir))?;
-    }
-    files.flush().map_err(io(&run_dir))?;
-    write_json_atomic(&run_dir.join("summary.json"), &summary).map_err(io(&run_dir))?;
-    plot_curves(&run_dir, &objectives)?;
+    write_reports(&summary, &files)?;
     Ok(summary)
 }
 
@@ -437,26 +327,4 @@ pub(crate) async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<
     let spec = env.spec().clone();
     env.close().await?;
     Ok(spec)
-}
-
-fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
-    let time = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis())
-        .unwrap_or(0);
-    let task: String = cfg
-        .env
-        .id
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    cfg.run
-        .runs_dir
-        .join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
 }

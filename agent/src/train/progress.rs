@@ -1,13 +1,18 @@
 //! What a user sees and does while a run trains: the progress bar and its message,
 //! and the signals (Ctrl-C, SIGTERM) that end a run early with its report.
 
-use indicatif::{ProgressBar, ProgressStyle};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
+use indicatif::{ProgressBar, ProgressStyle};
+use tokio::task::JoinHandle;
+
+use crate::algo::LearnerStats;
 use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Schedule};
 
 /// Resolves on the first Ctrl-C (SIGINT) or SIGTERM, with its name.
-pub(super) async fn interrupt_signal() -> &'static str {
+async fn interrupt_signal() -> &'static str {
     #[cfg(unix)]
     {
         use tokio::signal::unix::{SignalKind, signal};
@@ -37,6 +42,46 @@ async fn ctrl_c() -> &'static str {
     "Ctrl-C"
 }
 
+/// Every 250 ms until the run stops: moves the bar and its message. The first Ctrl-C or
+/// SIGTERM interrupts the run (a final checkpoint and report follow); a second Ctrl-C
+/// exits at once.
+pub(super) fn spawn_ticker(
+    schedule: Arc<Schedule>,
+    latest: Arc<Mutex<Option<LearnerStats>>>,
+    bar: ProgressBar,
+    names: Vec<String>,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut signal = std::pin::pin!(interrupt_signal());
+        let mut signalled = false;
+        loop {
+            tokio::select! {
+                _ = tokio::time::sleep(Duration::from_millis(250)) => {}
+                name = &mut signal, if !signalled => {
+                    signalled = true;
+                    tracing::warn!("{name}: stopping after a final checkpoint and report (Ctrl-C again to exit at once)");
+                    schedule.interrupt(name);
+                    tokio::spawn(async {
+                        if tokio::signal::ctrl_c().await.is_ok() {
+                            std::process::exit(130);
+                        }
+                    });
+                }
+            }
+            let c = schedule.counters();
+            bar.set_position(c.env_steps);
+            bar.set_message(progress_message(
+                &c,
+                &names,
+                latest.lock().unwrap_or_else(|e| e.into_inner()).as_ref(),
+            ));
+            if c.stop {
+                break;
+            }
+        }
+    })
+}
+
 pub(super) fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule) -> ProgressBar {
     if !enabled {
         return ProgressBar::hidden();
@@ -51,11 +96,7 @@ pub(super) fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule
     bar
 }
 
-pub(super) fn progress_message(
-    c: &Counters,
-    names: &[String],
-    stats: Option<&crate::algo::LearnerStats>,
-) -> String {
+fn progress_message(c: &Counters, names: &[String], stats: Option<&LearnerStats>) -> String {
     let fmt = |v: &[f64]| {
         v.iter()
             .map(|x| format!("{x:.2}"))

@@ -1,0 +1,129 @@
+//! A run's state before its first step: the run directory (made, or reopened to
+//! resume from its latest checkpoint), the learner, and the schedule that paces actors
+//! and learner (replay layout, rate limit, counters, solve tracker).
+
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use tch::Device;
+
+use super::{TrainError, io};
+use crate::algo::Learner;
+use crate::algo::objectives::LearnerDims;
+use crate::learner::latest_checkpoint;
+use crate::nets::ActionKind;
+use crate::replay::{SnippetLayout, SnippetReplay};
+use crate::run_config::TrainConfig;
+use crate::schedule::{Counters, Pace, Schedule};
+use crate::solve::SolveTracker;
+
+/// The run directory, its learner and the counters it starts from.
+pub(super) struct Opened {
+    pub run_dir: PathBuf,
+    pub learner: Learner,
+    /// Zero for a new run; the checkpoint's progress when resuming.
+    pub counters: Counters,
+}
+
+/// A new run directory holding the resolved `config.toml`, or, with `resume`, that
+/// directory's latest checkpoint.
+pub(super) fn open_run(
+    cfg: &TrainConfig,
+    resume: Option<&Path>,
+    dims: &LearnerDims,
+    device: Device,
+) -> Result<Opened, TrainError> {
+    if let Some(dir) = resume {
+        let (ckpt, progress) = latest_checkpoint(dir)?;
+        let learner = Learner::load_checkpoint(&ckpt, device)?;
+        tracing::info!(checkpoint = %ckpt.display(), env_steps = progress.env_steps, "resuming");
+        return Ok(Opened {
+            run_dir: dir.to_path_buf(),
+            learner,
+            counters: Counters {
+                env_steps: progress.env_steps,
+                learner_steps: progress.learner_steps,
+                episodes: progress.episodes,
+                ..Counters::default()
+            },
+        });
+    }
+    let dir = new_run_dir(cfg);
+    std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+    let text = toml::to_string_pretty(cfg).map_err(|e| TrainError::Io {
+        path: dir.join("config.toml"),
+        source: std::io::Error::other(e),
+    })?;
+    std::fs::write(dir.join("config.toml"), text).map_err(io(&dir))?;
+    Ok(Opened {
+        run_dir: dir,
+        learner: Learner::new(cfg.learner.clone(), dims.clone(), device)?,
+        counters: Counters::default(),
+    })
+}
+
+/// The schedule over a fresh replay (off-policy: the ratio pace after a warm-up;
+/// on-policy: a queue the actors fill one batch ahead), and the snippet layout the
+/// actors write.
+pub(super) fn schedule_for(
+    cfg: &TrainConfig,
+    dims: &LearnerDims,
+    objectives: &[String],
+    counters: Counters,
+) -> Result<(Schedule, SnippetLayout), TrainError> {
+    let settings = cfg.learner.shared();
+    let on_policy = cfg.learner.algorithm.on_policy();
+    let layout = SnippetLayout {
+        length: settings.sequence_length,
+        obs_dim: dims.obs_dim as usize,
+        action_width: match dims.action {
+            ActionKind::Continuous { dim } => dim as usize,
+            ActionKind::Discrete { .. } => 1,
+        },
+        num_rewards: objectives.len(),
+        discrete: matches!(dims.action, ActionKind::Discrete { .. }),
+        on_policy,
+    };
+    let (capacity, pace) = if on_policy {
+        // The queue never holds much more than one batch: actors wait for the learner.
+        (
+            usize::MAX,
+            Pace::OnPolicy {
+                batch_size: settings.batch_size,
+            },
+        )
+    } else {
+        let pace = Pace::Ratio {
+            learner_steps_per_env_step: cfg.run.learner_steps_per_env_step,
+            min_replay_transitions: cfg.run.min_replay_transitions.max(settings.sequence_length),
+        };
+        (cfg.learner.mpo.replay_capacity, pace)
+    };
+    let replay = SnippetReplay::new(layout, capacity, cfg.seed);
+    let mut solve = SolveTracker::new(&cfg.run.solve_threshold, objectives)?;
+    solve.stop_on_solve = cfg.run.stop_on_solve;
+    let counters = Counters { solve, ..counters };
+    Ok((Schedule::new(replay, pace, counters), layout))
+}
+
+fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
+    let time = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis())
+        .unwrap_or(0);
+    let task: String = cfg
+        .env
+        .id
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    cfg.run
+        .runs_dir
+        .join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
+}
