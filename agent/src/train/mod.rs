@@ -44,7 +44,7 @@ mod setup;
 
 use finish::{final_evaluation, write_reports};
 use progress::{progress_bar, spawn_ticker};
-use setup::{Opened, open_run, schedule_for};
+use setup::{Opened, open_run, schedule_for, snippet_layout};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -169,8 +169,8 @@ pub async fn train(
     if options.resume.is_some() {
         files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
     }
-    let (schedule, layout) = schedule_for(&cfg, &dims, &objectives, counters)?;
-    let schedule = Arc::new(schedule);
+    let layout = snippet_layout(&cfg, &dims, objectives.len());
+    let schedule = Arc::new(schedule_for(&cfg, layout, &objectives, counters)?);
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
     let latest = Arc::new(Mutex::new(None));
 

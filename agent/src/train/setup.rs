@@ -62,29 +62,35 @@ pub(super) fn open_run(
     })
 }
 
-/// The schedule over a fresh replay (off-policy: the ratio pace after a warm-up;
-/// on-policy: a queue the actors fill one batch ahead), and the snippet layout the
-/// actors write.
-pub(super) fn schedule_for(
+/// How actors write snippets and the learner reads them.
+pub(super) fn snippet_layout(
     cfg: &TrainConfig,
     dims: &LearnerDims,
-    objectives: &[String],
-    counters: Counters,
-) -> Result<(Schedule, SnippetLayout), TrainError> {
-    let settings = cfg.learner.shared();
-    let on_policy = cfg.learner.algorithm.on_policy();
-    let layout = SnippetLayout {
-        length: settings.sequence_length,
+    num_rewards: usize,
+) -> SnippetLayout {
+    SnippetLayout {
+        length: cfg.learner.shared().sequence_length,
         obs_dim: dims.obs_dim as usize,
         action_width: match dims.action {
             ActionKind::Continuous { dim } => dim as usize,
             ActionKind::Discrete { .. } => 1,
         },
-        num_rewards: objectives.len(),
+        num_rewards,
         discrete: matches!(dims.action, ActionKind::Discrete { .. }),
-        on_policy,
-    };
-    let (capacity, pace) = if on_policy {
+        on_policy: cfg.learner.algorithm.on_policy(),
+    }
+}
+
+/// The schedule over a fresh replay: off-policy, the ratio pace after a warm-up;
+/// on-policy, a queue the actors fill one batch ahead.
+pub(super) fn schedule_for(
+    cfg: &TrainConfig,
+    layout: SnippetLayout,
+    objectives: &[String],
+    counters: Counters,
+) -> Result<Schedule, TrainError> {
+    let settings = cfg.learner.shared();
+    let (capacity, pace) = if layout.on_policy {
         // The queue never holds much more than one batch: actors wait for the learner.
         (
             usize::MAX,
@@ -103,7 +109,7 @@ pub(super) fn schedule_for(
     let mut solve = SolveTracker::new(&cfg.run.solve_threshold, objectives)?;
     solve.stop_on_solve = cfg.run.stop_on_solve;
     let counters = Counters { solve, ..counters };
-    Ok((Schedule::new(replay, pace, counters), layout))
+    Ok(Schedule::new(replay, pace, counters))
 }
 
 fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
