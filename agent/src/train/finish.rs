@@ -14,6 +14,14 @@ use crate::nets::ActorPolicy;
 use crate::run_config::TrainConfig;
 use crate::video::{VideoPlan, VideoReport};
 
+/// What the final evaluation produced.
+pub(super) struct FinalEvaluation {
+    /// The episodes, as the server reported them (none for an interrupted run).
+    pub episodes: Vec<EpisodeSummary>,
+    /// Their video, when videos were asked for.
+    pub video: Option<VideoReport>,
+}
+
 /// The evaluation episodes, on a live server; none when the run was interrupted, since
 /// whoever stopped it wants it to end soon.
 pub(super) async fn final_evaluation(
@@ -23,20 +31,29 @@ pub(super) async fn final_evaluation(
     interrupted: bool,
     video: Option<&VideoPlan>,
     run_dir: &Path,
-) -> Result<(Vec<EpisodeSummary>, Option<VideoReport>), TrainError> {
+) -> Result<FinalEvaluation, TrainError> {
     if interrupted {
-        return Ok((Vec::new(), None));
+        return Ok(FinalEvaluation {
+            episodes: Vec::new(),
+            video: None,
+        });
     }
     let client = servers.live().await?.client;
     let episodes = cfg.run.eval_episodes;
     Ok(match video {
         Some(plan) => {
             let path = run_dir.join("videos").join("final.mp4");
-            let (eval, video) =
+            let (episodes, video) =
                 evaluate_recorded(&client, cfg, policy, episodes, &path, &plan.options).await?;
-            (eval, Some(video))
+            FinalEvaluation {
+                episodes,
+                video: Some(video),
+            }
         }
-        None => (evaluate(&client, cfg, policy, episodes).await?, None),
+        None => FinalEvaluation {
+            episodes: evaluate(&client, cfg, policy, episodes).await?,
+            video: None,
+        },
     })
 }
 

@@ -42,7 +42,7 @@ mod finish;
 mod progress;
 mod setup;
 
-use finish::{final_evaluation, write_reports};
+use finish::{FinalEvaluation, final_evaluation, write_reports};
 use progress::{progress_bar, spawn_ticker};
 use setup::{Opened, open_run, schedule_for, snippet_layout};
 
@@ -271,7 +271,10 @@ pub async fn train(
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
     drop(learner);
-    let (eval, eval_video) = final_evaluation(
+    let FinalEvaluation {
+        episodes: eval,
+        video: eval_video,
+    } = final_evaluation(
         &cfg,
         &servers,
         policy,
