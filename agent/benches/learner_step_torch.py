@@ -9,7 +9,10 @@ online critic regression + Adam; E-step with temperature duals; decoupled M-step
 alpha duals; Adam on the policy and the duals. Median of 20 steps after 3 warm-up steps.
 
 Run: .venv/bin/python agent/benches/learner_step_torch.py [--threads N]  (prints its figure
-last; `cargo bench -p agent --bench learner_step` runs it too and prints the ratio)
+last). `cargo bench -p agent --bench learner_step` runs it with `--rounds R --steps S`:
+after warming up it prints `ready`, then for each line on stdin it times S steps and
+prints `round_ms_median=<ms>`, so that the Rust and PyTorch steps alternate in rounds
+and each round's ratio compares the two under the same load on the machine.
 """
 
 import math
@@ -57,9 +60,12 @@ def log_prob(mean, std, a):
     return (-0.5 * ((a - mean) / std) ** 2 - std.log() - 0.5 * math.log(2 * math.pi)).sum(-1)
 
 
+def arg(name, default):
+    return int(sys.argv[sys.argv.index(name) + 1]) if name in sys.argv else default
+
+
 def main():
-    threads = int(sys.argv[sys.argv.index("--threads") + 1]) if "--threads" in sys.argv else os.cpu_count()
-    torch.set_num_threads(threads)
+    torch.set_num_threads(arg("--threads", os.cpu_count()))
     torch.manual_seed(0)
     policy, critic = Policy(), Critic()
     target_policy, target_critic = Policy(), Critic()
@@ -130,14 +136,28 @@ def main():
             temp_param.clamp_(min=-18)
             alpha_param.clamp_(min=-18)
 
+    def timed(steps):
+        times = []
+        for _ in range(steps):
+            start = time.perf_counter()
+            step()
+            times.append((time.perf_counter() - start) * 1e3)
+        return times
+
     for _ in range(3):
         step()
-    times = []
-    for _ in range(20):
-        start = time.perf_counter()
-        step()
-        times.append((time.perf_counter() - start) * 1e3)
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}")
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}", flush=True)
+    rounds = arg("--rounds", None)
+    if rounds is None:
+        times = timed(arg("--steps", 20))
+    else:
+        print("ready", flush=True)
+        times = []
+        for _ in range(rounds):
+            sys.stdin.readline()
+            round_times = timed(arg("--steps", 4))
+            print(f"round_ms_median={statistics.median(round_times):.2f}", flush=True)
+            times += round_times
     print(f"learner_step_ms_median={statistics.median(times):.1f}")
 
 

@@ -1,9 +1,10 @@
 #![allow(dead_code, unreachable_pub, reason = "each benchmark uses a subset")]
 //! The learner-step benchmarks' shared parts: `learner_step` (humanoid size, Table 3)
 //! and `learner_step_pendulum` (the old pendulum preset's size) run one full MO-MPO
-//! step on a fixed random batch through `run`; `vmpo_step` uses `time_steps` and
-//! `arg`. A step is timed as the median of `--steps` steps after warm-up steps, with
-//! the share of each phase.
+//! step on a fixed random batch through `run` (or, `learner_step` against PyTorch,
+//! through `prepare`, `warm_up` and `timed` in rounds); `vmpo_step` uses `time_steps`
+//! and `arg`. A step is timed as the median of `--steps` steps after warm-up steps,
+//! with the share of each phase.
 
 use agent::algo::{Learner, LearnerDims, SnippetBatch};
 use agent::config::{LearnerConfig, ObjectiveConfig, ObjectiveSource};
@@ -61,26 +62,25 @@ pub fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// Times `steps` learner steps on `batch` after `warmup` untimed ones, prints each
-/// phase's share of the time (`names` in `PhaseTimings` order) and returns the step
-/// times in ms.
-pub fn time_steps(
-    learner: &mut Learner,
-    batch: &SnippetBatch,
-    warmup: usize,
-    steps: usize,
-    names: [&str; 4],
-) -> Vec<f64> {
-    for _ in 0..warmup {
-        learner.step(batch).expect("step");
-    }
-    let mut totals = Vec::new();
-    let mut phases = [0.0f64; 4];
+/// Step times in ms and the summed time of each phase (`PhaseTimings` order).
+pub struct Timed {
+    /// One entry per step.
+    pub totals: Vec<f64>,
+    /// Policy evaluation, E-step, M-step + duals, target update.
+    pub phases: [f64; 4],
+}
+
+/// Times `steps` learner steps on `batch`.
+pub fn timed(learner: &mut Learner, batch: &SnippetBatch, steps: usize) -> Timed {
+    let mut out = Timed {
+        totals: Vec::new(),
+        phases: [0.0; 4],
+    };
     for _ in 0..steps {
         let start = std::time::Instant::now();
         let p = learner.step(batch).expect("step").timings;
-        totals.push(start.elapsed().as_secs_f64() * 1e3);
-        for (acc, v) in phases.iter_mut().zip([
+        out.totals.push(start.elapsed().as_secs_f64() * 1e3);
+        for (acc, v) in out.phases.iter_mut().zip([
             p.policy_evaluation_ms,
             p.e_step_ms,
             p.m_step_ms,
@@ -89,18 +89,61 @@ pub fn time_steps(
             *acc += v;
         }
     }
+    out
+}
+
+/// Takes `steps` untimed steps (allocator, caches and libtorch's lazy set-up).
+pub fn warm_up(learner: &mut Learner, batch: &SnippetBatch, steps: usize) {
+    for _ in 0..steps {
+        learner.step(batch).expect("step");
+    }
+}
+
+/// Prints each phase's share of the time (`names` in `PhaseTimings` order).
+pub fn print_phases(phases: &[f64; 4], names: [&str; 4]) {
     let sum: f64 = phases.iter().sum();
     for (name, v) in names.iter().zip(phases) {
         println!("  {:>5.1}%  {name}", 100.0 * v / sum);
     }
-    totals
 }
 
-/// Runs the benchmark: `--threads N` (default: every core), `--steps N` (default 20);
-/// `--batch B` and `--samples M` change the size for exploration (the default is the
-/// size the benchmark is named for).
-/// Prints `learner_step_ms_median=<ms>` last and returns that median.
-pub fn run(size: StepSize) -> f64 {
+/// Times `steps` learner steps on `batch` after `warmup` untimed ones, prints each
+/// phase's share of the time and returns the step times in ms.
+pub fn time_steps(
+    learner: &mut Learner,
+    batch: &SnippetBatch,
+    warmup: usize,
+    steps: usize,
+    names: [&str; 4],
+) -> Vec<f64> {
+    warm_up(learner, batch, warmup);
+    let t = timed(learner, batch, steps);
+    print_phases(&t.phases, names);
+    t.totals
+}
+
+/// The phases of an MO-MPO step, as `time_steps` prints them.
+pub const MPO_PHASES: [&str; 4] = [
+    "policy evaluation (sampling, target critic x M, Retrace, critic update)",
+    "E-step",
+    "M-step + duals",
+    "target update",
+];
+
+/// A learner and a fixed random batch at one benchmark's size, ready to step.
+pub struct Prepared {
+    /// The learner, on the benchmark's device.
+    pub learner: Learner,
+    /// The batch every step trains on.
+    pub batch: SnippetBatch,
+    /// `--steps N` (default 20).
+    pub steps: usize,
+}
+
+/// Builds the learner and batch for `size` and prints the size: `--threads N` (default:
+/// every core), `--steps N`; `--batch B` and `--samples M` change the size for
+/// exploration (the default is the size the benchmark is named for).
+pub fn prepare(size: StepSize) -> Prepared {
     agent::device::tune_allocator();
     let threads =
         agent::device::configure_threads(Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0));
@@ -122,7 +165,7 @@ pub fn run(size: StepSize) -> f64 {
         reward_names: vec!["task".into(), "action_norm".into()],
         obs_leaves: Vec::new(),
     };
-    let mut learner = Learner::new(cfg.clone(), dims, device).expect("valid config");
+    let learner = Learner::new(cfg.clone(), dims, device).expect("valid config");
     tch::manual_seed(0);
     let opts = (Kind::Float, tch::Device::Cpu);
     let batch = SnippetBatch {
@@ -138,13 +181,23 @@ pub fn run(size: StepSize) -> f64 {
         "{name}: obs {obs_dim}, act {act_dim}, B {b}, T {t}, M {}, policy {:?}, critic {:?}, K 2 (task + closed-form action_norm), device {device:?}, threads {threads}",
         cfg.mpo.num_samples, cfg.network.policy_layers, cfg.network.critic_layers
     );
-    let names = [
-        "policy evaluation (sampling, target critic x M, Retrace, critic update)",
-        "E-step",
-        "M-step + duals",
-        "target update",
-    ];
-    let totals = time_steps(&mut learner, &batch, 3, steps, names);
+    Prepared {
+        learner,
+        batch,
+        steps,
+    }
+}
+
+/// Runs the benchmark (see `prepare` for the flags): the median of `--steps` steps
+/// after 3 warm-up steps, with the share of each phase.
+/// Prints `learner_step_ms_median=<ms>` last and returns that median.
+pub fn run(size: StepSize) -> f64 {
+    let Prepared {
+        mut learner,
+        batch,
+        steps,
+    } = prepare(size);
+    let totals = time_steps(&mut learner, &batch, 3, steps, MPO_PHASES);
     let ms = median(totals);
     println!("learner_step_ms_median={ms:.2}");
     ms
