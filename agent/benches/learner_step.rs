@@ -25,7 +25,7 @@
 mod common;
 
 use agent::config::{LearnerConfig, NetworkConfig};
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Write as _};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 fn main() {
@@ -109,8 +109,8 @@ impl TorchRounds {
 
     /// Times one round in the script and returns its median step in ms.
     fn round(&mut self) -> f64 {
+        // ChildStdin is unbuffered: the line reaches the script at once.
         writeln!(self.stdin, "go").expect("write to the script");
-        self.stdin.flush().expect("write to the script");
         let v = self.read_until("round_ms_median=");
         v.parse()
             .unwrap_or_else(|_| panic!("a median in ms, got '{v}'"))
@@ -143,11 +143,11 @@ fn compare_with_torch(prepared: common::Prepared) {
         let t = common::timed(&mut learner, &batch, per_round);
         let rust_ms = common::median(t.totals.clone());
         let torch_ms = torch.round();
+        let ratio = rust_ms / torch_ms;
         println!(
-            "  round {r}/{rounds}: Rust {rust_ms:.1} ms, PyTorch {torch_ms:.1} ms, ratio {:.3}",
-            rust_ms / torch_ms
+            "  round {r}/{rounds}: Rust {rust_ms:.1} ms, PyTorch {torch_ms:.1} ms, ratio {ratio:.3}"
         );
-        ratios.push(rust_ms / torch_ms);
+        ratios.push(ratio);
         rust_all.extend(t.totals);
         phases.iter_mut().zip(t.phases).for_each(|(a, v)| *a += v);
     }

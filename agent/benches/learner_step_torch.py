@@ -147,15 +147,15 @@ def main():
     for _ in range(3):
         step()
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}", flush=True)
-    rounds = arg("--rounds", None)
+    steps, rounds = arg("--steps", 20), arg("--rounds", None)
     if rounds is None:
-        times = timed(arg("--steps", 20))
+        times = timed(steps)
     else:
         print("ready", flush=True)
         times = []
         for _ in range(rounds):
             sys.stdin.readline()
-            round_times = timed(arg("--steps", 4))
+            round_times = timed(steps)
             print(f"round_ms_median={statistics.median(round_times):.2f}", flush=True)
             times += round_times
     print(f"learner_step_ms_median={statistics.median(times):.1f}")
