@@ -72,6 +72,13 @@ enum Command {
         servers: Vec<String>,
         #[command(flatten)]
         connection: ConnectionArgs,
+        /// Override the sweep file's total_env_steps (every run's run.total_env_steps).
+        #[arg(long)]
+        total_env_steps: Option<u64>,
+        /// Override any field of the base config, `dotted.path=toml_value` (repeatable),
+        /// as `train --set`; applied after the sweep file's `set`, before the grid.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        overrides: Vec<String>,
         /// Override learner.device of every run.
         #[arg(long, value_enum)]
         device: Option<DeviceChoice>,
@@ -287,12 +294,17 @@ async fn run() -> Result<()> {
             config,
             servers,
             connection,
+            total_env_steps,
+            overrides,
             device,
             video,
             video_args,
         } => {
-            let (sweep_cfg, mut base) = SweepConfig::load(&config)
+            let (mut sweep_cfg, mut base) = SweepConfig::load_with(&config, &overrides)
                 .with_context(|| format!("loading {}", config.display()))?;
+            if total_env_steps.is_some() {
+                sweep_cfg.total_env_steps = total_env_steps;
+            }
             if let Some(d) = device {
                 base.learner.device = d;
             }

@@ -139,15 +139,25 @@ pub(super) fn invalid(field: &str, requirement: &str, got: impl std::fmt::Debug)
 impl SweepConfig {
     /// Read a sweep file and the base config it names.
     pub fn load(path: &Path) -> Result<(SweepConfig, TrainConfig), ConfigError> {
+        Self::load_with(path, &[])
+    }
+
+    /// [`SweepConfig::load`], with `overrides` (`agent sweep --set`) appended to the
+    /// file's `set`, so that they win over it; each run's config.toml records the result.
+    pub fn load_with(
+        path: &Path,
+        overrides: &[String],
+    ) -> Result<(SweepConfig, TrainConfig), ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| invalid("sweep file", "readable", format!("{}: {e}", path.display())))?;
-        let sweep: SweepConfig = toml::from_str(&text).map_err(|e| {
+        let mut sweep: SweepConfig = toml::from_str(&text).map_err(|e| {
             invalid(
                 &format!("sweep file {}", path.display()),
                 "valid TOML matching the schema",
                 e.to_string(),
             )
         })?;
+        sweep.set.extend_from_slice(overrides);
         let base_path = path.parent().unwrap_or(Path::new(".")).join(&sweep.base);
         let base = TrainConfig::load_with(&base_path, &sweep.set)?;
         sweep.validate(&base)?;
@@ -345,6 +355,46 @@ mod tests {
         // Step 0.15 / 99; w_task complements it.
         assert!((settings[1]["action_norm"] - 0.15 / 99.0).abs() < 1e-15);
         assert!((settings[1]["task"] - (1.0 - 0.15 / 99.0)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn command_line_overrides_follow_the_files_set_and_name_a_bad_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+        std::fs::copy(smoke, dir.path().join("base.toml")).unwrap();
+        let sweep = dir.path().join("sweep.toml");
+        std::fs::write(
+            &sweep,
+            r#"
+                name = "t"
+                base = "base.toml"
+                set = ["learner.mpo.batch_size=16", "learner.mpo.num_samples=5"]
+                reference_point = { time = -25.0, treasure = 0.0 }
+                [grid]
+                kind = "epsilon"
+                product = { time = [0.01] }
+            "#,
+        )
+        .unwrap();
+        let sizes = |b: &TrainConfig| (b.learner.mpo.batch_size, b.learner.mpo.num_samples);
+        let (s, base) = SweepConfig::load(&sweep).unwrap();
+        assert_eq!(sizes(&base), (16, 5));
+        assert_eq!(s.set.len(), 2);
+
+        // The command line's batch size wins over the file's; the file's M stays.
+        let (s, base) =
+            SweepConfig::load_with(&sweep, &["learner.mpo.batch_size=8".into()]).unwrap();
+        assert_eq!(sizes(&base), (8, 5));
+        assert_eq!(s.set.last().unwrap(), "learner.mpo.batch_size=8");
+
+        let e = SweepConfig::load_with(&sweep, &["learner.mpo.batch_sise=8".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("batch_sise"), "{e}");
+        let e = SweepConfig::load_with(&sweep, &["learner.mpo.batch_size=0".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("batch_size") && e.contains('0'), "{e}");
     }
 
     #[test]
