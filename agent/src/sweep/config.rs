@@ -394,7 +394,9 @@ mod tests {
         let e = SweepConfig::load_with(&sweep, &["learner.mpo.batch_size=0".into()])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("batch_size") && e.contains('0'), "{e}");
+        // ConfigError::Invalid's "{field} must be {requirement}, got {got}" with
+        // MpoConfig::validate's field and requirement.
+        assert_eq!(e, "mpo.batch_size must be >= 1, got 0");
     }
 
     #[test]
