@@ -19,7 +19,8 @@ use crate::env::pool::{Assignment, ServerPool};
 use crate::env::{Env, HostTensor, MakeOptions};
 use crate::error::{EnvError, StatusKind};
 use crate::metrics::{EpisodeRecord, RunFiles};
-use crate::nets::{ActionBounds, ActorPolicy, PolicySnapshot};
+use crate::nets::{Acting, ActionBounds, ActorPolicy, PolicySnapshot};
+use crate::random::StreamKey;
 use crate::replay::SnippetLayout;
 use crate::replay::adder::{AdderStep, SnippetAdder};
 use crate::schedule::Schedule;
@@ -38,6 +39,9 @@ pub struct ActorContext {
     pub make: MakeOptions,
     /// The acting policy (parameters arrive through `params`).
     pub policy: ActorPolicy,
+    /// The actor's sampling stream (`random::Purpose::Acting`, index = actor number);
+    /// its counter is the actor's step number.
+    pub sampling: StreamKey,
     /// Latest published policy parameters.
     pub params: watch::Receiver<Arc<PolicySnapshot>>,
     /// Snippet sizes of the replay.
@@ -212,6 +216,7 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         servers,
         make,
         mut policy,
+        sampling,
         mut params,
         layout,
         schedule,
@@ -239,6 +244,7 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         Err(e) => return Err(e),
     };
     let map = ActionMap::new(&live.env.spec().action_space)?;
+    let mut acts = 0u64;
     loop {
         if params.has_changed().unwrap_or(false) {
             let snapshot = params.borrow_and_update().clone();
@@ -251,7 +257,9 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
             break;
         }
         let obs_t = Tensor::from_slice(&live.obs).view([b as i64, o as i64]);
-        let out = tch::no_grad(|| policy.act(&obs_t, false));
+        let mut stream = sampling.at(acts);
+        acts += 1;
+        let out = policy.act(&obs_t, Acting::Sample(&mut stream));
         let log_probs =
             Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
         let (env_action, replay_actions) = map.apply(&out.actions, b);

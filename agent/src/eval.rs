@@ -15,7 +15,7 @@ use crate::env::pool::ServerPool;
 use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
 use crate::learner::latest_checkpoint;
-use crate::nets::ActorPolicy;
+use crate::nets::{Acting, ActorPolicy};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, make_options, mean_of, probe_spec};
 use crate::video::{Recorder, VideoOptions, VideoReport};
@@ -98,7 +98,7 @@ pub async fn evaluate_observed<O: EvalObserver>(
     let mut done = Vec::new();
     while done.len() < episodes {
         let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
-        let out = tch::no_grad(|| policy.act(&obs_t, true));
+        let out = policy.act(&obs_t, Acting::Deterministic);
         let (action, _) = map.apply(&out.actions, num_envs);
         let step = env.step(&action).await?;
         observer.on_step(&env, &step).await?;

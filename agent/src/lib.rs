@@ -13,6 +13,8 @@
 //! - [`env`]: the `Env` trait, the gRPC client (`env::grpc`, the only code that sees proto types),
 //!   a local env for tests, and a helper that starts a local `env_server` process.
 //! - `config`, `nets`, `algo`, `checkpoint`: the learner (pure; no tokio, tonic or proto).
+//! - [`random`]: the per-run random streams every draw comes from (keyed by seed and
+//!   purpose), and the one locked use of libtorch's global generator (initialisation).
 //!
 //! Shape legend used in docs: B batch (env instances, replay samples or unrolls), M
 //! sampled actions per state, D action dims, K objectives, T snippet or unroll length.
@@ -35,6 +37,7 @@ pub mod metrics;
 pub mod nets;
 pub mod pareto;
 pub mod plot;
+pub mod random;
 pub mod replay;
 pub mod run_config;
 pub mod schedule;

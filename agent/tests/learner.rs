@@ -106,7 +106,7 @@ fn policy_snapshot_drives_an_actor_policy() {
     let obs = Tensor::randn([4, 3], (Kind::Float, Device::Cpu));
     assert!(
         actor
-            .act(&obs, true)
+            .act(&obs, agent::nets::Acting::Deterministic)
             .actions
             .equal(&learner.act(&obs, true).actions)
     );

@@ -33,6 +33,7 @@ use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec,
 };
 use crate::nets::{ActionKind, GaussianParams, PolicyOutput};
+use crate::random::Purpose;
 use std::time::Instant;
 use tch::{Kind, Tensor};
 
@@ -92,10 +93,11 @@ impl Learner {
         let act_taken = batch.actions.flatten(0, 1);
         let heads = self.bound.critic_names.len() as i64;
         let noise = match self.dims.action {
-            ActionKind::Continuous { dim } => Some(
-                self.noise
-                    .standard_normal(&[self.cfg.mpo.num_samples, n, dim], self.device)?,
-            ),
+            ActionKind::Continuous { dim } => Some(self.noise.standard_normal(
+                &[self.cfg.mpo.num_samples, n, dim],
+                self.device,
+                self.step,
+            )?),
             ActionKind::Discrete { .. } => None,
         };
         let Critics::Q {
@@ -238,7 +240,11 @@ impl Learner {
         let PolicyOutput::Gaussian(target) = &target_out else {
             panic!("improve_policy_with needs a Gaussian policy");
         };
-        let samples = tch::no_grad(|| target.sample(self.cfg.mpo.num_samples));
+        let shape = [&[self.cfg.mpo.num_samples][..], &target.mean.size()[..]].concat();
+        let noise = self
+            .stream(Purpose::LearnerNoise)
+            .normal(&shape, self.device);
+        let samples = tch::no_grad(|| target.sample_from(&noise));
         let q = q_fn(&samples);
         let estep = sampled_estep(&q, &self.duals.temperature(), &self.epsilon);
         let online_out = self.policy.forward(&obs);

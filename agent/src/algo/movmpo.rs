@@ -31,6 +31,7 @@ use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since,
 };
 use crate::nets::PolicyOutput;
+use crate::random::Purpose;
 use std::time::Instant;
 use tch::{Kind, Tensor};
 
@@ -150,7 +151,9 @@ impl Learner {
 
         // 3. Step 2 (D.2.2, eq. 25) and dual updates.
         let start = Instant::now();
-        let noise = self.policy.latent_noise(n_real);
+        let noise = self
+            .policy
+            .latent_noise(n_real, &mut self.stream(Purpose::LatentNoise));
         let target_out = tch::no_grad(|| {
             self.target_policy
                 .forward_with_noise(&obs_real, noise.as_ref())

@@ -23,9 +23,11 @@ pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
 use crate::nets::{
-    ActOutput, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot, SnapshotError,
-    ValueNet,
+    ActOutput, Acting, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot,
+    SnapshotError, ValueNet,
 };
+use crate::random::{Purpose, RandomStream, StreamKey, seeded_init};
+use std::cell::Cell;
 use std::time::Instant;
 use tch::{Device, Kind, Tensor, nn};
 
@@ -94,6 +96,16 @@ pub(crate) struct StepMeasures {
     pub timings: PhaseTimings,
 }
 
+/// What `Learner::build_networks` makes.
+struct Networks {
+    policy_vs: nn::VarStore,
+    policy: Policy,
+    target_policy_vs: nn::VarStore,
+    target_policy: Policy,
+    critic_vs: nn::VarStore,
+    critics: Critics,
+}
+
 /// Networks, targets, optimizers, duals and the step counter of one learner.
 #[derive(Debug)]
 pub struct Learner {
@@ -117,6 +129,8 @@ pub struct Learner {
     pub(crate) critic_reward_weights: Tensor,
     /// Where the sampled actions' noise comes from.
     pub(crate) noise: NoiseSource,
+    /// Sampling `act` calls so far: the counter of the `LearnerActing` stream.
+    acts: Cell<u64>,
     pub(crate) step: u64,
 }
 
@@ -144,37 +158,17 @@ impl Learner {
     ) -> Result<Self, LearnerError> {
         let bound = bind_config(&cfg, &dims)?;
         let settings = cfg.shared();
-        tch::manual_seed(cfg.seed as i64);
-        let net = &cfg.network;
-        let heads = bound.critic_names.len() as i64;
-        let policy_vs = nn::VarStore::new(device);
-        let policy = Policy::new(&(policy_vs.root() / "policy"), net, &dims);
-        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, |vs| {
-            Policy::new(&(vs.root() / "policy"), net, &dims)
+        let nets = seeded_init(cfg.seed, || {
+            Self::build_networks(&cfg, &dims, &bound, device)
         })?;
-        let critic_vs = nn::VarStore::new(device);
-        let critics = if cfg.algorithm.on_policy() {
-            Critics::V {
-                online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads),
-            }
-        } else {
-            let build = |vs: &nn::VarStore| {
-                MultiCritic::new(
-                    &(vs.root() / "critic"),
-                    net,
-                    dims.obs_dim,
-                    dims.action,
-                    heads,
-                )
-            };
-            let online = build(&critic_vs);
-            let (target_vs, target) = frozen_copy(&critic_vs, build)?;
-            Critics::Q {
-                online,
-                target,
-                target_vs,
-            }
-        };
+        let Networks {
+            policy_vs,
+            policy,
+            target_policy_vs,
+            target_policy,
+            critic_vs,
+            critics,
+        } = nets;
         let adam = AdamConfig::new(settings.learning_rate, settings.adam_eps);
         let policy_opt = Adam::for_var_store(&policy_vs, adam);
         let critic_opt = Adam::for_var_store(&critic_vs, adam);
@@ -208,9 +202,11 @@ impl Learner {
             .flatten()
             .map(|&w| w as f32)
             .collect();
+        let heads = bound.critic_names.len() as i64;
         let critic_reward_weights = Tensor::from_slice(&w)
             .reshape([dims.reward_names.len() as i64, heads])
             .to_device(device);
+        let noise = NoiseSource::Draw(StreamKey::new(cfg.seed, Purpose::LearnerNoise, 0));
         Ok(Self {
             cfg,
             settings,
@@ -228,8 +224,57 @@ impl Learner {
             duals,
             epsilon,
             critic_reward_weights,
-            noise: NoiseSource::Draw,
+            noise,
+            acts: Cell::new(0),
             step: 0,
+        })
+    }
+
+    /// The networks in today's construction order, which fixes what each parameter
+    /// draws from the seeded generator (see `random::seeded_init`).
+    fn build_networks(
+        cfg: &LearnerConfig,
+        dims: &LearnerDims,
+        bound: &BoundObjectives,
+        device: Device,
+    ) -> Result<Networks, tch::TchError> {
+        let net = &cfg.network;
+        let heads = bound.critic_names.len() as i64;
+        let policy_vs = nn::VarStore::new(device);
+        let policy = Policy::new(&(policy_vs.root() / "policy"), net, dims);
+        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, |vs| {
+            Policy::new(&(vs.root() / "policy"), net, dims)
+        })?;
+        let critic_vs = nn::VarStore::new(device);
+        let critics = if cfg.algorithm.on_policy() {
+            Critics::V {
+                online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads),
+            }
+        } else {
+            let build = |vs: &nn::VarStore| {
+                MultiCritic::new(
+                    &(vs.root() / "critic"),
+                    net,
+                    dims.obs_dim,
+                    dims.action,
+                    heads,
+                )
+            };
+            let online = build(&critic_vs);
+            let (target_vs, target) = frozen_copy(&critic_vs, build)?;
+            Critics::Q {
+                online,
+                target,
+                target_vs,
+            }
+        };
+        Ok(Networks {
+            policy_vs,
+            policy,
+            target_policy_vs,
+            target_policy,
+            critic_vs,
+            critics,
         })
     }
 
@@ -277,10 +322,22 @@ impl Learner {
     }
 
     /// Actions from the online policy (sampled, or the mode with `deterministic`).
+    /// Samples come from the learner's `LearnerActing` stream, one counter per call.
     /// # Shapes
     /// `obs [B, O]` -> actions `[B, D]` f32 or `[B]` i64, log-probs `[B]`.
     pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
-        self.policy.act(&obs.to_device(self.device), deterministic)
+        let obs = obs.to_device(self.device);
+        if deterministic {
+            return self.policy.act(&obs, Acting::Deterministic);
+        }
+        let call = self.acts.replace(self.acts.get() + 1);
+        let mut stream = StreamKey::new(self.cfg.seed, Purpose::LearnerActing, 0).at(call);
+        self.policy.act(&obs, Acting::Sample(&mut stream))
+    }
+
+    /// This learner step's stream for `purpose` (keyed by `learner.seed`).
+    pub(crate) fn stream(&self, purpose: Purpose) -> RandomStream {
+        StreamKey::new(self.cfg.seed, purpose, 0).at(self.step)
     }
 
     /// Copy of the online policy parameters for actors.

@@ -15,7 +15,7 @@ pub mod value;
 pub use critic::MultiCritic;
 pub use dims::{ActionBounds, LearnerDims, ObsLeaf, ObsSplit};
 pub use policy::{
-    ActOutput, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
+    ActOutput, Acting, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
 };
 pub use snapshot::{ActorPolicy, NamedArray, PolicySnapshot, SnapshotError};
 pub use value::ValueNet;

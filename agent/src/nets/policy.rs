@@ -12,6 +12,7 @@ use super::mlp::Dense;
 use super::torso::Torso;
 use super::{ActionKind, LearnerDims};
 use crate::config::NetworkConfig;
+use crate::random::RandomStream;
 use tch::{Kind, Tensor, nn};
 
 const HALF_LOG_TWO_PI: f64 = 0.918_938_533_204_672_7;
@@ -33,15 +34,6 @@ impl GaussianParams {
         let z = (actions - &self.mean) / &self.std;
         let per_dim = z.square() * -0.5 - self.std.log() - HALF_LOG_TWO_PI;
         per_dim.sum_dim_intlist(-1, false, Kind::Float)
-    }
-
-    /// Draws `m` actions per state. # Shapes `-> [M, B, D]`.
-    pub fn sample(&self, m: i64) -> Tensor {
-        let size = [&[m][..], &self.mean.size()[..]].concat();
-        self.sample_from(&Tensor::randn(
-            size.as_slice(),
-            (self.mean.kind(), self.mean.device()),
-        ))
     }
 
     /// The actions `mean + std * noise` for standard-normal `noise`.
@@ -171,6 +163,15 @@ pub struct ActOutput {
     pub log_probs: Tensor,
 }
 
+/// How `Policy::act` chooses actions.
+#[derive(Debug)]
+pub enum Acting<'a> {
+    /// The mean (Gaussian) or most likely action (categorical), latent noise zero.
+    Deterministic,
+    /// Draws from the policy with numbers from this stream.
+    Sample(&'a mut RandomStream),
+}
+
 /// A Gaussian or categorical policy network.
 #[derive(Debug)]
 pub enum Policy {
@@ -207,31 +208,56 @@ impl Policy {
         }
     }
 
-    /// Latent noise for `rows` states, `None` when the torso has no latent.
-    pub fn latent_noise(&self, rows: i64) -> Option<Tensor> {
+    /// The latent width of a latent torso, `None` for a plain one.
+    pub fn latent_dim(&self) -> Option<i64> {
         match self {
-            Policy::Gaussian(g) => g.torso.noise(rows),
-            Policy::Categorical(c) => c.torso.noise(rows),
+            Policy::Gaussian(g) => g.torso.latent_dim(),
+            Policy::Categorical(c) => c.torso.latent_dim(),
         }
     }
 
-    /// Samples (or, with `deterministic`, takes the mean / most likely) actions.
+    /// Latent noise `[rows, L]` from `stream`, `None` when the torso has no latent.
+    pub fn latent_noise(&self, rows: i64, stream: &mut RandomStream) -> Option<Tensor> {
+        let device = match self {
+            Policy::Gaussian(g) => g.head.weight.device(),
+            Policy::Categorical(c) => c.head.weight.device(),
+        };
+        self.latent_dim().map(|l| stream.normal(&[rows, l], device))
+    }
+
+    /// Samples actions from `stream` (or takes the mean / most likely action).
     /// Runs without gradient tracking.
-    pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
+    ///
+    /// A categorical sample is the inverse CDF of one uniform per state: the first
+    /// action whose cumulative probability exceeds it.
+    pub fn act(&self, obs: &Tensor, acting: Acting<'_>) -> ActOutput {
         tch::no_grad(|| {
+            let rows = obs.size()[0];
+            let device = obs.device();
             // The deterministic policy uses the latent's mean (zero noise).
-            let noise = self
-                .latent_noise(obs.size()[0])
-                .map(|n| if deterministic { n.zeros_like() } else { n });
+            let (noise, stream) = match acting {
+                Acting::Deterministic => (
+                    self.latent_dim()
+                        .map(|l| Tensor::zeros([rows, l], (Kind::Float, device))),
+                    None,
+                ),
+                Acting::Sample(stream) => (self.latent_noise(rows, stream), Some(stream)),
+            };
             let out = self.forward_with_noise(obs, noise.as_ref());
-            let actions = match &out {
-                PolicyOutput::Gaussian(g) if deterministic => g.mean.shallow_clone(),
-                PolicyOutput::Gaussian(g) => g.sample(1).squeeze_dim(0),
-                PolicyOutput::Categorical(logits) if deterministic => logits.argmax(-1, false),
-                PolicyOutput::Categorical(logits) => logits
-                    .softmax(-1, Kind::Float)
-                    .multinomial(1, true)
-                    .squeeze_dim(-1),
+            let actions = match (&out, stream) {
+                (PolicyOutput::Gaussian(g), None) => g.mean.shallow_clone(),
+                (PolicyOutput::Gaussian(g), Some(stream)) => {
+                    g.sample_from(&stream.normal(&g.mean.size(), device))
+                }
+                (PolicyOutput::Categorical(logits), None) => logits.argmax(-1, false),
+                (PolicyOutput::Categorical(logits), Some(stream)) => {
+                    let cdf = logits.softmax(-1, Kind::Float).cumsum(-1, Kind::Float);
+                    let u = stream.uniform(&[rows, 1], device);
+                    // Rounding can leave the last cumulative probability below u.
+                    cdf.lt_tensor(&u)
+                        .sum_dim_intlist(-1, false, Kind::Int64)
+                        .clamp_max(cdf.size()[1] - 1)
+                }
             };
             let log_probs = out.log_prob(&actions);
             ActOutput { actions, log_probs }
@@ -242,6 +268,7 @@ impl Policy {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::random::{Purpose, StreamKey};
     use tch::Device;
 
     fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
@@ -271,7 +298,6 @@ mod tests {
         let out = policy.forward(&obs, None);
         assert!(out.std.min().double_value(&[]) >= 1e-2);
         assert!(out.mean.abs().max().double_value(&[]) <= 1.0);
-        assert_eq!(out.sample(5).size(), vec![5, 64, 2]);
     }
 
     #[test]
@@ -282,10 +308,46 @@ mod tests {
             &NetworkConfig::default(),
             &dims(3, ActionKind::Discrete { n: 4 }),
         );
-        let act = policy.act(&Tensor::zeros([6, 3], (Kind::Float, Device::Cpu)), false);
+        let mut stream = StreamKey::new(0, Purpose::Acting, 0).at(0);
+        let obs = Tensor::zeros([6, 3], (Kind::Float, Device::Cpu));
+        let act = policy.act(&obs, Acting::Sample(&mut stream));
         assert_eq!(act.actions.size(), vec![6]);
         assert_eq!(act.actions.kind(), Kind::Int64);
         let max = act.log_probs.max().double_value(&[]);
         assert!(max <= 0.0 && max > -20.0);
+    }
+
+    #[test]
+    fn categorical_samples_follow_the_probabilities_and_the_stream() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let policy = Policy::new(
+            &vs.root(),
+            &NetworkConfig::default(),
+            &dims(3, ActionKind::Discrete { n: 4 }),
+        );
+        // One state repeated: every row has the same probabilities p.
+        let obs = Tensor::ones([20_000, 3], (Kind::Float, Device::Cpu));
+        let PolicyOutput::Categorical(logits) = policy.forward(&obs.narrow(0, 0, 1)) else {
+            unreachable!("a discrete action space gives a categorical policy")
+        };
+        let p = Vec::<f32>::try_from(logits.softmax(-1, Kind::Float).flatten(0, -1)).unwrap();
+        let key = StreamKey::new(5, Purpose::Acting, 0);
+        let actions = policy.act(&obs, Acting::Sample(&mut key.at(0))).actions;
+        for (a, &p_a) in p.iter().enumerate() {
+            let freq = actions
+                .eq(a as i64)
+                .to_kind(Kind::Double)
+                .mean(Kind::Double);
+            // Binomial standard error sqrt(p(1-p)/n) <= 0.0036 at n = 20,000.
+            assert!(
+                (freq.double_value(&[]) - p_a as f64).abs() < 0.02,
+                "action {a}: frequency {freq} against probability {p_a}"
+            );
+        }
+        let again = policy.act(&obs, Acting::Sample(&mut key.at(0))).actions;
+        assert!(
+            actions.equal(&again),
+            "the same stream gives the same actions"
+        );
     }
 }

@@ -3,8 +3,9 @@
 //! named arrays carry any network's parameters in and out (`named_arrays`, `load_named`).
 
 use super::LearnerDims;
-use super::policy::{ActOutput, Policy};
+use super::policy::{ActOutput, Acting, Policy};
 use crate::config::NetworkConfig;
+use crate::random::seeded_init;
 use tch::{Device, Kind, Tensor, nn};
 
 /// One parameter tensor as plain data.
@@ -135,10 +136,15 @@ pub struct ActorPolicy {
 
 impl ActorPolicy {
     /// A policy with the learner's layout (`policy/..` names) on `device`.
+    ///
+    /// Its initial weights are placeholders until `load`; they are drawn under
+    /// `seeded_init` only so that building one never moves another run's numbers.
     pub fn new(cfg: &NetworkConfig, dims: &LearnerDims, device: Device) -> Self {
-        let vs = nn::VarStore::new(device);
-        let policy = Policy::new(&(vs.root() / "policy"), cfg, dims);
-        Self { vs, policy }
+        seeded_init(0, || {
+            let vs = nn::VarStore::new(device);
+            let policy = Policy::new(&(vs.root() / "policy"), cfg, dims);
+            Self { vs, policy }
+        })
     }
 
     /// Replaces the parameters.
@@ -147,8 +153,7 @@ impl ActorPolicy {
     }
 
     /// Samples (or takes the mode of) actions. # Shapes `obs [B, obs_dim]`.
-    pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
-        self.policy
-            .act(&obs.to_device(self.vs.device()), deterministic)
+    pub fn act(&self, obs: &Tensor, acting: Acting<'_>) -> ActOutput {
+        self.policy.act(&obs.to_device(self.vs.device()), acting)
     }
 }

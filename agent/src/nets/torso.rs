@@ -31,14 +31,6 @@ pub struct MocapTorso {
 }
 
 impl MocapTorso {
-    /// The latent noise for `rows` states. # Shapes `-> [B, L]`.
-    pub fn noise(&self, rows: i64) -> Tensor {
-        Tensor::randn(
-            [rows, self.latent_dim],
-            (Kind::Float, self.proprio_idx.device()),
-        )
-    }
-
     /// # Shapes
     /// `obs [B, O]`, `noise [B, L]` (zeros give the latent mean) `-> [B, policy_layers.last()]`.
     pub fn forward(&self, obs: &Tensor, noise: &Tensor) -> Tensor {
@@ -107,22 +99,28 @@ impl Torso {
         }
     }
 
-    /// Latent noise for `rows` states, or `None` for torsos without a latent.
-    pub fn noise(&self, rows: i64) -> Option<Tensor> {
+    /// The latent width L, or `None` for torsos without a latent.
+    pub fn latent_dim(&self) -> Option<i64> {
         match self {
             Torso::Mlp(_) => None,
-            Torso::Mocap(m) => Some(m.noise(rows)),
+            Torso::Mocap(m) => Some(m.latent_dim),
         }
     }
 
     /// # Shapes
-    /// `obs [B, O]`, `noise [B, L]` or `None` (fresh noise) `-> [B, F]`.
+    /// `obs [B, O]`, `noise [B, L]`, or `None` for the latent's mean `-> [B, F]`.
+    ///
+    /// A sampled latent is always the caller's (from its own random stream), so that
+    /// no forward pass draws numbers of its own.
     pub fn forward(&self, obs: &Tensor, noise: Option<&Tensor>) -> Tensor {
         match self {
             Torso::Mlp(m) => m.forward(obs),
             Torso::Mocap(m) => match noise {
                 Some(xi) => m.forward(obs, xi),
-                None => m.forward(obs, &m.noise(obs.size()[0])),
+                None => m.forward(
+                    obs,
+                    &Tensor::zeros([obs.size()[0], m.latent_dim], (Kind::Float, obs.device())),
+                ),
             },
         }
     }
@@ -164,7 +162,8 @@ mod tests {
         let vs = nn::VarStore::new(Device::Cpu);
         let torso = Torso::new(&vs.root(), &cfg, &dims);
         let obs = Tensor::randn([3, 5], (Kind::Float, Device::Cpu));
-        let xi = torso.noise(3).unwrap();
+        assert_eq!(torso.latent_dim(), Some(4));
+        let xi = Tensor::randn([3, 4], (Kind::Float, Device::Cpu));
         assert_eq!(xi.size(), vec![3, 4]);
         let a = torso.forward(&obs, Some(&xi));
         assert_eq!(a.size(), vec![3, 8]);

@@ -10,11 +10,12 @@
 
 pub mod adder;
 
-use rand::{RngExt, SeedableRng};
+use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 use tch::Tensor;
 
 use crate::algo::batch::SnippetBatch;
+use crate::random::{Purpose, StreamKey};
 
 /// Sizes of one snippet.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -83,7 +84,7 @@ impl SnippetReplay {
             snippets: Vec::new(),
             next: 0,
             inserted: 0,
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            rng: StreamKey::new(seed, Purpose::Replay, 0).rng(),
         }
     }
 

@@ -32,6 +32,7 @@ use crate::learner::{LearnerContext, LearnerLoopError, run_learner};
 use crate::metrics::RunFiles;
 use crate::nets::ActorPolicy;
 use crate::plot::PlotError;
+use crate::random::{Purpose, StreamKey};
 use crate::run_config::TrainConfig;
 use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
@@ -206,6 +207,7 @@ pub async fn train(
                 ..make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64)
             },
             policy,
+            sampling: StreamKey::new(cfg.seed, Purpose::Acting, a as u64),
             params: params_rx.clone(),
             layout,
             schedule: schedule.clone(),
