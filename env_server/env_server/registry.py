@@ -45,6 +45,8 @@ from env_server.kwarg_types import check_kwarg_types
 from env_server.task import Objective, Task
 
 ENTRY_POINT_GROUP = "env_server.envs"
+# Characters of a plug-in's import error that its "unavailable" reason quotes.
+REASON_LIMIT = 300
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +167,14 @@ class Registry:
         try:
             cls = _load_task_class(ep)
         except _Broken as exc:
-            log.error("env %s (package %s, %s) is unavailable: %s", ep.name, package, origin, exc.reason)
+            log.error(
+                "env %s (package %s, %s) is unavailable: %s",
+                ep.name,
+                package,
+                origin,
+                exc.reason,
+                exc_info=exc.__cause__,
+            )
             self._entries[ep.name] = EnvEntry(ep.name, "", (), _never, origin, package, exc.reason)
             return
         self._entries[ep.name] = EnvEntry(ep.name, cls.description, tuple(cls.objectives), cls, origin, package)
@@ -235,14 +244,21 @@ def _load_task_class(ep: importlib.metadata.EntryPoint) -> type[Task]:
     try:
         cls = ep.load()
     except Exception as exc:
-        raise _Broken(f"failed to load: {type(exc).__name__}: {exc}") from exc
+        # Cut: the reason travels in ListEnvs and in Make's status, whose trailing
+        # metadata clients cap at 8-16 KiB; the log keeps the whole of it (the cause).
+        message = str(exc)
+        if len(message) > REASON_LIMIT:
+            message = f"{message[:REASON_LIMIT]}... ({len(message)} characters)"
+        raise _Broken(f"failed to load: {type(exc).__name__}: {message}") from exc
     if not (inspect.isclass(cls) and issubclass(cls, Task)):
-        raise _Broken(f"expected a subclass of env_server.task.Task, got {cls!r}")
+        raise _Broken(f"expected a subclass of env_server.task.Task, got {quote(cls, REASON_LIMIT)}")
     objectives = cls.objectives
     if not (isinstance(objectives, tuple) and all(isinstance(o, Objective) for o in objectives)):
-        raise _Broken(f"{cls.__name__}.objectives: expected a tuple of env_server.task.Objective, got {objectives!r}")
+        raise _Broken(
+            f"{cls.__name__}.objectives: expected a tuple of env_server.task.Objective, got {quote(objectives, REASON_LIMIT)}"
+        )
     if not isinstance(cls.description, str):
-        raise _Broken(f"{cls.__name__}.description: expected a str, got {cls.description!r}")
+        raise _Broken(f"{cls.__name__}.description: expected a str, got {quote(cls.description, REASON_LIMIT)}")
     return cls
 
 

@@ -31,6 +31,8 @@ LOAD_FAILURES = {
     "missing": "failed to load: ModuleNotFoundError: No module named 'shaky_pkg.nowhere'",
     "not-a-task": "expected a subclass of env_server.task.Task, got <function not_a_task",
     "bad-objectives": "BadObjectives.objectives: expected a tuple of env_server.task.Objective, got ('stay', 'move')",
+    # Cut to 300 characters: the reason travels in status metadata, which clients cap.
+    "huge-error": f"failed to load: ImportError: {'x' * 300}... (10000 characters)",
 }
 
 

@@ -3,7 +3,8 @@
 Kept out of tests/plugins (which every test server loads) so that only the tests about
 failing plug-ins see them. Its dist-info declares, in the `env_server.envs` group:
 `missing` (a module that does not exist), `not-a-task` (a function), `bad-objectives`
-(strings where Objectives belong), `buggy` (a constructor with a bug), `crashy` (a
+(strings where Objectives belong), `huge-error` (an import error with a 10000-character
+message), `buggy` (a constructor with a bug), `crashy` (a
 constructor that raises unless told not to) and `stepper` (a working Task that
 validates its kwargs).
 """
