@@ -96,9 +96,10 @@ def _fmt_objective(o: Objective) -> str:
 
 
 def print_list(registry: Registry, out=sys.stdout) -> None:
-    """Every env id (shipped, entry points, adapter patterns) with description and objectives."""
+    """Every env id (shipped, entry points, adapter patterns) with description and objectives;
+    an entry point that did not load shows "unavailable: <why>" instead."""
     for entry in registry.entries():
-        print(f"{entry.env_id}  {entry.description}", file=out)
+        print(f"{entry.env_id}  {registry.listed_description(entry)}", file=out)
         for o in entry.objectives:
             print(_fmt_objective(o), file=out)
     for prefix in registry.prefixes:

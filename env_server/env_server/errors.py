@@ -81,6 +81,15 @@ class SimulatorError(Internal):
     """A Task raised while stepping or resetting; names env, session and instance."""
 
 
+class ConstructorError(SimulatorError):
+    """A Task's constructor raised for a reason that is not the caller's kwargs (a bug in
+    the env or its install); `reason` is "<ExceptionType>: <message>"."""
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
 class Unauthenticated(EnvServerError):
     """The call carries no bearer token, or one this server does not know."""
 

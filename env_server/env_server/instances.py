@@ -30,7 +30,7 @@ from typing import Any
 import gymnasium
 
 from env_server import spaces
-from env_server.errors import Cancelled, EnvServerError, Internal, InvalidArgument, SimulatorError, quote
+from env_server.errors import Cancelled, ConstructorError, EnvServerError, Internal, InvalidArgument, quote
 from env_server.registry import EnvEntry, construct
 from env_server.task import Objective, StepOutcome, Task
 
@@ -460,7 +460,8 @@ def build_instances(
     """Construct num_envs instances of `entry` (in num_workers worker processes too) and check them.
 
     Errors name the field: a bad num_workers or info key is InvalidArgument, a raising
-    constructor a SimulatorError naming the env. Nothing is left running on failure.
+    constructor a ConstructorError naming the env and its package. Nothing is left
+    running on failure.
     """
     if isinstance(entry.factory, type):
         # Reject unknown info keys before paying for a simulator load when the class declares them.
@@ -477,8 +478,10 @@ def build_instances(
         else:
             instances = LocalInstances(list(_build_tasks(build, range(num_envs), cancel).values()))
     except InstanceFailure as failure:
-        log.error("env %s: constructor raised", entry.env_id, exc_info=failure.__cause__)
-        raise SimulatorError(f"env {entry.env_id}: constructor raised {failure.error}") from failure
+        # Logged by Registry.note_make, once per reason, however often clients retry.
+        raise ConstructorError(
+            f"env {entry.env_id} (package {entry.package}): constructor raised {failure.error}", failure.error
+        ) from failure
     try:
         _check_task(entry.env_id, instances.info, info_keys)
     except BaseException:

@@ -36,7 +36,7 @@ import env_server
 from env_server import render, wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.datafiles import DataDirs
-from env_server.errors import EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
+from env_server.errors import ConstructorError, EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
 from env_server.memory import release_memory
 from env_server.registry import Registry
 from env_server.session import Autoreset, Session, check_seed_range, make_session
@@ -215,7 +215,11 @@ class EnvService:
     async def ListEnvs(self, request: pb.ListEnvsRequest, owner: str | None = None) -> pb.ListEnvsResponse:
         return pb.ListEnvsResponse(
             envs=[
-                pb.EnvInfo(env_id=e.env_id, description=e.description, objectives=wire.objectives_pb(e.objectives))
+                pb.EnvInfo(
+                    env_id=e.env_id,
+                    description=self.registry.listed_description(e),
+                    objectives=wire.objectives_pb(e.objectives),
+                )
                 for e in self.registry.entries()
             ]
         )
@@ -304,7 +308,14 @@ class EnvService:
         return pb.MakeResponse(session_id=session.id, spec=wire.spec_pb(session), lease_seconds=self.lease_seconds)
 
     def _build(self, env_id: str, num_envs: int, kwargs: dict[str, Any], **options: Any) -> Session:
-        return make_session(self.registry.resolve(env_id), num_envs, kwargs, **options)
+        entry = self.registry.resolve(env_id)
+        try:
+            session = make_session(entry, num_envs, kwargs, **options)
+        except ConstructorError as exc:
+            self.registry.note_make(entry, exc)
+            raise
+        self.registry.note_make(entry, None)
+        return session
 
     async def Reset(self, request: pb.ResetRequest, owner: str | None = None) -> pb.ResetResponse:
         with self._lock:

@@ -6,6 +6,12 @@ nothing of gRPC, sessions or batching: the server owns B Tasks per session.
 
 Objectives are declared once, on the class, as a tuple of `Objective`; the
 reward returned by `step` has exactly one entry per objective, in that order.
+
+Task docstrings carry a `## Reward Space` section (MO-Gymnasium's convention), one
+line per reward entry: `<index>: <name>, <definition>, <range>`. Nothing parses it:
+`objectives` is the declaration the server serves, and the section is where a reader
+finds each formula and its units, so it keeps the same names in the same order.
+README.md "Add an env" walks through writing a Task.
 """
 
 from __future__ import annotations

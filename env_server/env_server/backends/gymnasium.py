@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from env_server import gl, render
-from env_server.errors import FailedPrecondition, InvalidArgument, quote
+from env_server.errors import FailedPrecondition
+from env_server.kwarg_types import check_kwarg_types
 from env_server.task import Objective, StepOutcome, Task
 
 
@@ -48,11 +49,9 @@ def gym_frame(env_id: str, env: Any, width: int, height: int) -> np.ndarray:
     return render.resize(frame, width, height)
 
 
-def check_kwarg_types(gym_id: str, kwargs: dict[str, Any]) -> None:
-    """Refuses, at Make, a keyword whose value cannot be of the type of the env class's
-    default (a str where the default is a float, ...): gymnasium stores such values and
-    the env fails on its first step instead. Keywords without a plain scalar default
-    (None, tuples, callables) pass unchecked."""
+def check_gym_kwarg_types(gym_id: str, kwargs: dict[str, Any]) -> None:
+    """check_kwarg_types against the gymnasium env class's constructor: gymnasium stores a
+    keyword of the wrong type and the env fails on its first step instead."""
     import gymnasium
     from gymnasium.envs.registration import load_env_creator
 
@@ -62,22 +61,7 @@ def check_kwarg_types(gym_id: str, kwargs: dict[str, Any]) -> None:
         params = inspect.signature(creator).parameters
     except (TypeError, ValueError):
         return
-    for name, value in kwargs.items():
-        param = params.get(name)
-        default = param.default if param is not None else inspect.Parameter.empty
-        if isinstance(default, bool):
-            ok, want = isinstance(value, bool), "a boolean"
-        elif isinstance(default, (int, float)):
-            allowed = int if isinstance(default, int) else (int, float)
-            ok, want = isinstance(value, allowed) and not isinstance(value, bool), f"a {type(default).__name__}"
-        elif isinstance(default, str):
-            ok, want = isinstance(value, str), "a string"
-        else:
-            continue
-        if not ok:
-            raise InvalidArgument(
-                f"kwargs_json: env '{gym_id}' keyword '{name}' expects {want} (its default is {default!r}), got {quote(value)}"
-            )
+    check_kwarg_types(gym_id, params, kwargs)
 
 
 class GymTask(Task):
@@ -93,7 +77,7 @@ class GymTask(Task):
     def __init__(self, gym_id: str, **kwargs: Any) -> None:
         import gymnasium
 
-        check_kwarg_types(gym_id, kwargs)
+        check_gym_kwarg_types(gym_id, kwargs)
         self.gym_id = gym_id
         self.env = gymnasium.make(gym_id, **with_rgb_array(gym_id, kwargs))
         self.observation_space = self.env.observation_space

@@ -1,4 +1,8 @@
-"""The shipped environments: one line per env id, sorted. Add a file here and a line below."""
+"""The shipped environments: one line per env id, sorted. Add a file here and a line below.
+
+Each file's docstring documents its task with `## Observation`, `## Action` and
+`## Reward Space` sections (the convention is explained in env_server/task.py).
+"""
 
 from __future__ import annotations
 
