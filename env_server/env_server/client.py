@@ -9,7 +9,7 @@ entries, like MO-Gymnasium (with a `reward_space` attribute); with
 `render_mode="rgb_array"` its `render()` returns the current frame, so gymnasium's
 `RecordVideo` records it. Failed calls raise
 `RemoteError` (or a subclass) carrying the gRPC code and message; only UNAVAILABLE
-is retried, with exponential backoff.
+is retried, with exponential backoff, and never a Step (one sent may have been applied).
 
 A server on another host (started with --tls-cert and --auth-token-file) is reached
 with an `https://host:port` address (or `tls_ca=`, which implies TLS), `tls_ca=` the CA
@@ -20,15 +20,12 @@ file that signed its certificate (default: the system's roots), `token=` or
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from typing import Any
 
-import grpc
 import gymnasium
 import numpy as np
 
-from env_server import spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import (
     Channel,
@@ -42,19 +39,11 @@ from env_server.connection import (
     UnauthenticatedError,
     read_token_file,
 )
-from env_server.session import Autoreset, SessionSpec
+from env_server.remote import RemoteSession, autoreset_mode, from_tensor, objectives, to_tensor, tree
+from env_server.session import Autoreset
 from env_server.task import Objective
 
-_PB_TO_DTYPE = {
-    pb.DTYPE_FLOAT32: np.dtype(np.float32),
-    pb.DTYPE_FLOAT64: np.dtype(np.float64),
-    pb.DTYPE_INT32: np.dtype(np.int32),
-    pb.DTYPE_INT64: np.dtype(np.int64),
-    pb.DTYPE_UINT8: np.dtype(np.uint8),
-    pb.DTYPE_BOOL: np.dtype(np.bool_),
-}
-_DTYPE_TO_PB = {dtype.name: code for code, dtype in _PB_TO_DTYPE.items()}
-__all__ = [  # the errors and token reader live in connection.py; users import them from here
+__all__ = [  # the errors and token reader live in connection.py, the tensors in remote.py
     "FailedPreconditionError",
     "InvalidArgumentError",
     "NotFoundError",
@@ -71,53 +60,6 @@ __all__ = [  # the errors and token reader live in connection.py; users import t
 ]
 
 
-def to_tensor(arr: np.ndarray) -> pb.Tensor:
-    """A numpy array as a wire Tensor (little-endian, row-major)."""
-    arr = np.ascontiguousarray(arr)
-    return pb.Tensor(dtype=_DTYPE_TO_PB[arr.dtype.name], shape=arr.shape, data=arr.tobytes())
-
-
-def from_tensor(tensor: pb.Tensor) -> np.ndarray:
-    """A wire Tensor as a numpy array (a read-only view of the message bytes)."""
-    return np.frombuffer(tensor.data, dtype=_PB_TO_DTYPE[tensor.dtype]).reshape(tuple(tensor.shape))
-
-
-def _space_spec(space: pb.Space) -> dict[str, Any]:
-    kind = space.WhichOneof("kind")
-    if kind == "dict":
-        return {"dict": [(e.name, _space_spec(e.space)) for e in space.dict.entries]}
-    if kind == "discrete":
-        return {"discrete": {"n": space.discrete.n, "start": space.discrete.start}}
-    box = space.box
-    return {
-        "box": {
-            "dtype": _PB_TO_DTYPE[box.dtype].name,
-            "shape": list(box.shape),
-            "low": list(box.low),
-            "high": list(box.high),
-        }
-    }
-
-
-def _objectives(specs: Sequence[pb.ObjectiveSpec]) -> tuple[Objective, ...]:
-    # A scale of 0 comes from servers older than the field: nothing was scaled.
-    return tuple(Objective(o.name, o.description, o.min, o.max, o.scale or 1.0) for o in specs)
-
-
-def _tree(named: Sequence[pb.NamedTensor]) -> Any:
-    """Leaves back into the observation: one unnamed leaf is the array itself."""
-    if len(named) == 1 and not named[0].name:
-        return from_tensor(named[0].tensor)
-    out: dict[str, Any] = {}
-    for leaf in named:
-        *parents, last = leaf.name.split(".")
-        node = out
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[last] = from_tensor(leaf.tensor)
-    return out
-
-
 def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Objective, ...]]]:
     """(env_id, description, objectives) for every env the server lists; `connection`
     takes the TLS and token keywords of the module doc."""
@@ -126,7 +68,7 @@ def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Obj
         response = channel.call(channel.stub.ListEnvs, pb.ListEnvsRequest())
     finally:
         channel.close()
-    return [(e.env_id, e.description, _objectives(e.objectives)) for e in response.envs]
+    return [(e.env_id, e.description, objectives(e.objectives)) for e in response.envs]
 
 
 class RemoteVectorEnv:
@@ -153,63 +95,38 @@ class RemoteVectorEnv:
     ) -> None:
         """num_workers >= 1 asks the server to step the instances in that many processes.
         The tls_* and token keywords are the module doc's; other kwargs go to the env."""
-        self._channel = Channel(
+        self._session = RemoteSession(
             address,
-            max_message_mb,
+            env_id,
+            num_envs,
+            seed,
+            autoreset=autoreset_mode(autoreset),
+            discount=discount,
+            info_keys=info_keys,
+            num_workers=num_workers,
+            max_message_mb=max_message_mb,
             tls_ca=tls_ca,
             tls_client_cert=tls_client_cert,
             tls_client_key=tls_client_key,
             token=token,
             token_file=token_file,
+            kwargs=kwargs,
         )
-        if isinstance(autoreset, str):
-            autoreset = Autoreset[autoreset.upper()]
-        request = pb.MakeRequest(
-            env_id=env_id,
-            num_envs=num_envs,
-            kwargs_json=json.dumps(kwargs) if kwargs else "",
-            autoreset_mode=int(autoreset),
-            info_keys=list(info_keys),
-            num_workers=num_workers,
-        )
-        if seed is not None:
-            request.seed = seed
-        if discount is not None:
-            request.discount = discount
-        response = self._channel.call(self._channel.stub.Make, request)
-        self.session_id: str = response.session_id
-        self.lease_seconds: float = response.lease_seconds
-        s = response.spec
-        self.spec = SessionSpec(
-            env_id=s.env_id,
-            num_envs=s.num_envs,
-            observation_space=spaces.spec_to_space(_space_spec(s.observation_space)),
-            action_space=spaces.spec_to_space(_space_spec(s.action_space)),
-            objectives=_objectives(s.objectives),
-            max_episode_steps=s.max_episode_steps,
-            autoreset=Autoreset(s.autoreset_mode),
-            discount=s.discount,
-            info_keys=tuple(s.info_keys),
-        )
-        self.num_envs = s.num_envs
-        self._action_dtype = spaces.leaf_dtype(self.spec.action_space)
+        self.session_id = self._session.session_id
+        self.lease_seconds = self._session.lease_seconds
+        self.spec = self._session.spec
+        self.num_envs = self.spec.num_envs
         self.cameras: tuple[str, ...] = ()  # the env's named cameras, known after a render()
         self.render_fps = 0.0  # real-time frames per second (0 = unknown), known after a render()
-        self.closed = False
 
     def reset(self, seed: int | Sequence[int] | None = None, env_indices: Sequence[int] = ()) -> Any:
         """Reset instances (all by default); an int seed gives instance i the seed + i."""
         seeds = [] if seed is None else [seed] if isinstance(seed, (int, np.integer)) else list(seed)
-        request = pb.ResetRequest(session_id=self.session_id, env_indices=list(env_indices), seeds=seeds)
-        return _tree(self._channel.call(self._channel.stub.Reset, request).observation)
+        return tree(self._session.reset(env_indices, seeds).observation)
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every instance; infos holds "episodes", maybe "final_observation", and info keys."""
-        action = to_tensor(np.asarray(actions, dtype=self._action_dtype))
-        response = self._channel.call(
-            self._channel.stub.Step, pb.StepRequest(session_id=self.session_id, action=action)
-        )
-        return self.decode_step(response)
+        return self.decode_step(self._session.step(actions))
 
     @staticmethod
     def decode_step(response: pb.StepResponse) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -227,11 +144,11 @@ class RemoteVectorEnv:
             ]
         }
         if response.final_observation:
-            infos["final_observation"] = _tree(response.final_observation)
+            infos["final_observation"] = tree(response.final_observation)
         for leaf in response.info:
             infos[leaf.name] = from_tensor(leaf.tensor)
         return (
-            _tree(response.observation),
+            tree(response.observation),
             from_tensor(response.reward),
             np.array(response.terminated, np.bool_),
             np.array(response.truncated, np.bool_),
@@ -244,30 +161,17 @@ class RemoteVectorEnv:
         0 = the server's default size (320 x 240); camera "" = the task's default view
         (`cameras` lists the others once a frame was rendered).
         """
-        request = pb.RenderRequest(
-            session_id=self.session_id, env_indices=list(env_indices), width=width, height=height, camera=camera
-        )
-        response = self._channel.call(self._channel.stub.Render, request)
+        response = self._session.render(env_indices, width, height, camera)
         self.cameras = tuple(response.cameras)
         self.render_fps = response.fps
         return from_tensor(response.frames)
 
+    @property
+    def closed(self) -> bool:
+        return self._session.closed
+
     def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        request = pb.CloseRequest(session_id=self.session_id)
-        try:
-            try:
-                self._channel.call(self._channel.stub.CloseSession, request)
-            except RemoteError as exc:
-                if exc.code != grpc.StatusCode.UNIMPLEMENTED:
-                    raise
-                self._channel.call(self._channel.stub.Close, request)  # a server from before CloseSession
-        except NotFoundError:
-            pass  # already expired on the server
-        finally:
-            self._channel.close()
+        self._session.close()
 
     def __enter__(self) -> RemoteVectorEnv:
         return self
@@ -276,8 +180,20 @@ class RemoteVectorEnv:
         self.close()
 
 
-def _first(tree: Any) -> Any:
-    return {k: _first(v) for k, v in tree.items()} if isinstance(tree, dict) else tree[0]
+def _episode(e: pb.EpisodeEnd) -> dict[str, Any]:
+    """The server's record of an ended episode: vector returns [K], length, how it ended."""
+    return {
+        "episode_return": np.array(e.episode_return),
+        "discounted_return": np.array(e.discounted_return),
+        "length": e.length,
+        "terminated": e.terminated,
+        "truncated": e.truncated,
+    }
+
+
+def _at(obs: Any, i: int) -> Any:
+    """Instance i of a batched observation (an array or a dict tree of arrays)."""
+    return {k: _at(v, i) for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
 
 
 class RemoteEnv(gymnasium.Env):
@@ -319,7 +235,8 @@ class RemoteEnv(gymnasium.Env):
         self._render_args = (render_width, render_height, render_camera)
         self.metadata = {**self.metadata, "render_fps": render_fps}
         self._vec = RemoteVectorEnv(address, env_id, 1, seed, autoreset=Autoreset.DISABLED, **kwargs)
-        spec = self._vec.spec
+        self._session = self._vec._session  # the hot path skips the vector env's decoding
+        spec = self._session.spec
         self.observation_space = spec.observation_space
         self.action_space = spec.action_space
         self.objectives = spec.objectives
@@ -334,15 +251,17 @@ class RemoteEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         super().reset(seed=seed)
-        return _first(self._vec.reset(seed=seed)), {}
+        response = self._session.reset((), () if seed is None else (seed,))
+        info = {leaf.name: from_tensor(leaf.tensor)[0] for leaf in response.info}
+        return _at(tree(response.observation), 0), info
 
     def step(self, action: Any) -> tuple[Any, np.ndarray, bool, bool, dict[str, Any]]:
-        batch = np.asarray(action)[None]
-        obs, reward, terminated, truncated, infos = self._vec.step(batch)
-        info: dict[str, Any] = {k: _first(v) for k, v in infos.items() if k not in ("episodes", "final_observation")}
-        if infos["episodes"]:
-            info["server_episode"] = infos["episodes"][0]
-        return _first(obs), reward[0].copy(), bool(terminated[0]), bool(truncated[0]), info
+        response = self._session.step(np.asarray(action)[None])
+        info: dict[str, Any] = {leaf.name: from_tensor(leaf.tensor)[0] for leaf in response.info}
+        if response.episodes:
+            info["server_episode"] = _episode(response.episodes[0])
+        reward = from_tensor(response.reward)[0].copy()
+        return _at(tree(response.observation), 0), reward, response.terminated[0], response.truncated[0], info
 
     def render(self) -> np.ndarray | None:
         """The current frame (render_mode "rgb_array"), else None as gymnasium's envs do."""

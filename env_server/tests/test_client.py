@@ -13,7 +13,7 @@ import pytest
 from conftest import server_env
 from gymnasium.utils.env_checker import check_env
 
-from env_server.client import NotFoundError, RemoteEnv, RemoteVectorEnv, list_envs
+from env_server.client import InvalidArgumentError, NotFoundError, RemoteEnv, RemoteVectorEnv, list_envs
 from env_server.envs import REGISTRY
 
 
@@ -33,6 +33,24 @@ def test_remote_env_is_a_gymnasium_env_with_vector_reward(address: str) -> None:
         np.testing.assert_allclose(reward, [-1, 0.7], rtol=1e-6)
         assert terminated and not truncated and info["server_episode"]["length"] == 1
         assert obs.tolist() == [1, 0]  # autoreset is off: the caller resets
+    finally:
+        env.close()
+
+
+def test_a_refused_step_leaves_the_remote_env_usable(address: str) -> None:
+    """Steps ride a StepStream, which a refused action ends; the next step opens another
+    on the same session, and the episode goes on where it was."""
+    env = RemoteEnv(address, "dst")
+    try:
+        env.reset(seed=0)
+        env.step(1)  # right
+        with pytest.raises(InvalidArgumentError) as info:
+            env.step(7)
+        assert "action" in info.value.message and "7" in info.value.message
+        env.step(2)  # down
+        obs, reward, terminated, _, info = env.step(2)  # down onto the 8.2 treasure
+        assert obs.tolist() == [2, 1] and terminated and info["server_episode"]["length"] == 3
+        np.testing.assert_allclose(reward, [-1, 8.2], rtol=1e-6)
     finally:
         env.close()
 
