@@ -1,15 +1,18 @@
-"""A thin Python client for mo_env.v1.
+"""A thin Python client for mo_env.v1: gymnasium envs whose reward is a vector.
 
-    with RemoteVectorEnv("127.0.0.1:50051", "dst", num_envs=8, seed=0) as env:
-        obs = env.reset()
-        obs, reward, terminated, truncated, infos = env.step(actions)   # reward [B, K]
+    with RemoteVectorEnv("127.0.0.1:50051", "dst", num_envs=8, seed=0) as envs:
+        obs, infos = envs.reset()
+        obs, reward, terminated, truncated, infos = envs.step(actions)   # reward [B, K]
 
-`RemoteEnv` is a single-instance `gymnasium.Env` whose reward is a float32 vector of K
-entries, like MO-Gymnasium (with a `reward_space` attribute); with
-`render_mode="rgb_array"` its `render()` returns the current frame, so gymnasium's
-`RecordVideo` records it. Failed calls raise
-`RemoteError` (or a subclass) carrying the gRPC code and message; only UNAVAILABLE
-is retried, with exponential backoff, and never a Step (one sent may have been applied).
+`RemoteVectorEnv` is one server session of num_envs instances as a
+`gymnasium.vector.VectorEnv`, and `RemoteEnv` one instance as a `gymnasium.Env`. Both
+return the reward as a float32 vector of K entries, one per objective, and carry a
+`reward_space` of shape (K,), as MO-Gymnasium's envs and vector envs do.
+
+With `render_mode="rgb_array"` a `RemoteEnv`'s `render()` returns the current frame, so
+gymnasium's `RecordVideo` records it. Failed calls raise `RemoteError` (or a subclass)
+carrying the gRPC code and message; only UNAVAILABLE is retried, with exponential
+backoff, and never a Step (one sent may have been applied).
 
 A server on another host (started with --tls-cert and --auth-token-file) is reached
 with an `https://host:port` address (or `tls_ca=`, which implies TLS), `tls_ca=` the CA
@@ -25,6 +28,9 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space, create_empty_array
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import (
@@ -59,6 +65,13 @@ __all__ = [  # the errors and token reader live in connection.py, the tensors in
     "to_tensor",
 ]
 
+_TO_GYM = {
+    Autoreset.SAME_STEP: AutoresetMode.SAME_STEP,
+    Autoreset.NEXT_STEP: AutoresetMode.NEXT_STEP,
+    Autoreset.DISABLED: AutoresetMode.DISABLED,
+}
+_FROM_GYM = {mode: autoreset for autoreset, mode in _TO_GYM.items()}
+
 
 def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Objective, ...]]]:
     """(env_id, description, objectives) for every env the server lists; `connection`
@@ -71,113 +84,10 @@ def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Obj
     return [(e.env_id, e.description, objectives(e.objectives)) for e in response.envs]
 
 
-class RemoteVectorEnv:
-    """A remote session of num_envs instances, stepped as one batch."""
-
-    def __init__(
-        self,
-        address: str,
-        env_id: str,
-        num_envs: int,
-        seed: int | None = None,
-        *,
-        autoreset: Autoreset | str = Autoreset.SAME_STEP,
-        discount: float | None = None,
-        info_keys: Sequence[str] = (),
-        num_workers: int = 0,
-        max_message_mb: float = 64,
-        tls_ca: PathLike | None = None,
-        tls_client_cert: PathLike | None = None,
-        tls_client_key: PathLike | None = None,
-        token: str | None = None,
-        token_file: PathLike | None = None,
-        **kwargs: Any,
-    ) -> None:
-        """num_workers >= 1 asks the server to step the instances in that many processes.
-        The tls_* and token keywords are the module doc's; other kwargs go to the env."""
-        self._session = RemoteSession(
-            address,
-            env_id,
-            num_envs,
-            seed,
-            autoreset=autoreset_mode(autoreset),
-            discount=discount,
-            info_keys=info_keys,
-            num_workers=num_workers,
-            max_message_mb=max_message_mb,
-            tls_ca=tls_ca,
-            tls_client_cert=tls_client_cert,
-            tls_client_key=tls_client_key,
-            token=token,
-            token_file=token_file,
-            kwargs=kwargs,
-        )
-        self.session_id = self._session.session_id
-        self.lease_seconds = self._session.lease_seconds
-        self.spec = self._session.spec
-        self.num_envs = self.spec.num_envs
-        self.cameras: tuple[str, ...] = ()  # the env's named cameras, known after a render()
-        self.render_fps = 0.0  # real-time frames per second (0 = unknown), known after a render()
-
-    def reset(self, seed: int | Sequence[int] | None = None, env_indices: Sequence[int] = ()) -> Any:
-        """Reset instances (all by default); an int seed gives instance i the seed + i."""
-        seeds = [] if seed is None else [seed] if isinstance(seed, (int, np.integer)) else list(seed)
-        return tree(self._session.reset(env_indices, seeds).observation)
-
-    def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every instance; infos holds "episodes", maybe "final_observation", and info keys."""
-        return self.decode_step(self._session.step(actions))
-
-    @staticmethod
-    def decode_step(response: pb.StepResponse) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        infos: dict[str, Any] = {
-            "episodes": [
-                {
-                    "env_index": e.env_index,
-                    "episode_return": np.array(e.episode_return),
-                    "discounted_return": np.array(e.discounted_return),
-                    "length": e.length,
-                    "terminated": e.terminated,
-                    "truncated": e.truncated,
-                }
-                for e in response.episodes
-            ]
-        }
-        if response.final_observation:
-            infos["final_observation"] = tree(response.final_observation)
-        for leaf in response.info:
-            infos[leaf.name] = from_tensor(leaf.tensor)
-        return (
-            tree(response.observation),
-            from_tensor(response.reward),
-            np.array(response.terminated, np.bool_),
-            np.array(response.truncated, np.bool_),
-            infos,
-        )
-
-    def render(self, env_indices: Sequence[int] = (), width: int = 0, height: int = 0, camera: str = "") -> np.ndarray:
-        """uint8 [len(env_indices) or B, height, width, 3]: the instances' current RGB frames.
-
-        0 = the server's default size (320 x 240); camera "" = the task's default view
-        (`cameras` lists the others once a frame was rendered).
-        """
-        response = self._session.render(env_indices, width, height, camera)
-        self.cameras = tuple(response.cameras)
-        self.render_fps = response.fps
-        return from_tensor(response.frames)
-
-    @property
-    def closed(self) -> bool:
-        return self._session.closed
-
-    def close(self) -> None:
-        self._session.close()
-
-    def __enter__(self) -> RemoteVectorEnv:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+def _reward_space(objs: Sequence[Objective]) -> gymnasium.spaces.Box:
+    low = np.array([o.min for o in objs], np.float32)
+    high = np.array([o.max for o in objs], np.float32)
+    return gymnasium.spaces.Box(low, high, (len(objs),), np.float32)
 
 
 def _episode(e: pb.EpisodeEnd) -> dict[str, Any]:
@@ -194,6 +104,183 @@ def _episode(e: pb.EpisodeEnd) -> dict[str, Any]:
 def _at(obs: Any, i: int) -> Any:
     """Instance i of a batched observation (an array or a dict tree of arrays)."""
     return {k: _at(v, i) for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
+
+
+def _with_rows(obs: Any, rows: Any, indices: list[int]) -> Any:
+    """A copy of a batched observation with `rows` written at `indices`."""
+    if isinstance(obs, dict):
+        return {k: _with_rows(obs[k], rows[k], indices) for k in obs}
+    out = np.array(obs)
+    out[indices] = rows
+    return out
+
+
+def _reset_seeds(seed: int | Sequence[int | None] | None, indices: list[int] | None, num_envs: int) -> list[int]:
+    """ResetRequest.seeds for gymnasium's `seed`: an int s gives instance i the seed s + i."""
+    if seed is None:
+        return []
+    if isinstance(seed, (int, np.integer)):
+        return [int(seed)] if indices is None else [int(seed) + i for i in indices]
+    seeds = list(seed)
+    if len(seeds) != num_envs:
+        raise ValueError(f"seed: expected None, an int or {num_envs} seeds (one per instance), got {len(seeds)}")
+    chosen = seeds if indices is None else [seeds[i] for i in indices]
+    if all(s is None for s in chosen):
+        return []
+    if any(s is None for s in chosen):
+        raise ValueError(
+            f"seed: expected a seed for every instance reset or None for all of them (the server "
+            f"seeds a Reset's instances all or none), got {chosen}"
+        )
+    return [int(s) for s in chosen]
+
+
+class RemoteVectorEnv(gymnasium.vector.VectorEnv):
+    """A remote session of num_envs instances as a gymnasium VectorEnv, stepped as one batch.
+
+    The reward is float32 [B, K] with `reward_space` Box (K,), as MO-Gymnasium's vector envs
+    have it; `objectives` and `objective_names` say which objective each column is.
+    `metadata["autoreset_mode"]` is the session's `autoreset` (SAME_STEP by default, also
+    "next_step" or "disabled", or gymnasium's AutoresetMode). reset(seed=s) gives instance i
+    the seed s + i; `options={"reset_mask": mask}` resets only the masked instances.
+
+    Infos are gymnasium vector infos: each requested `info_keys` entry is an array [B, ...]
+    with a `_key` mask; an instance whose episode ended has the server's record of it under
+    `infos["server_episode"]` (`episode_return` and `discounted_return` [B, K], `length`,
+    `terminated`, `truncated`, each masked), and under SAME_STEP its last observation in
+    `infos["final_obs"]` and last info in `infos["final_info"]`, as gymnasium's SyncVectorEnv
+    puts them. The key "episode" is left to gymnasium's RecordEpisodeStatistics and
+    MO-Gymnasium's MORecordEpisodeStatistics, which write it (the latter counts with
+    NEXT_STEP autoreset). Observations are read-only views of the received message.
+
+    num_workers >= 1 asks the server to step the instances in that many processes. The tls_*
+    and token keywords are the module doc's; other kwargs go to the env's constructor.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        env_id: str,
+        num_envs: int,
+        seed: int | None = None,
+        *,
+        autoreset: Autoreset | AutoresetMode | str = Autoreset.SAME_STEP,
+        discount: float | None = None,
+        info_keys: Sequence[str] = (),
+        num_workers: int = 0,
+        max_message_mb: float = 64,
+        tls_ca: PathLike | None = None,
+        tls_client_cert: PathLike | None = None,
+        tls_client_key: PathLike | None = None,
+        token: str | None = None,
+        token_file: PathLike | None = None,
+        **kwargs: Any,
+    ) -> None:
+        mode = _FROM_GYM[autoreset] if isinstance(autoreset, AutoresetMode) else autoreset_mode(autoreset)
+        self._session = RemoteSession(
+            address,
+            env_id,
+            num_envs,
+            seed,
+            autoreset=mode,
+            discount=discount,
+            info_keys=info_keys,
+            num_workers=num_workers,
+            max_message_mb=max_message_mb,
+            tls_ca=tls_ca,
+            tls_client_cert=tls_client_cert,
+            tls_client_key=tls_client_key,
+            token=token,
+            token_file=token_file,
+            kwargs=kwargs,
+        )
+        spec = self.session_spec = self._session.spec
+        self.session_id = self._session.session_id
+        self.lease_seconds = self._session.lease_seconds
+        self.num_envs = spec.num_envs
+        self.single_observation_space = spec.observation_space
+        self.single_action_space = spec.action_space
+        self.observation_space = batch_space(spec.observation_space, self.num_envs)
+        self.action_space = batch_space(spec.action_space, self.num_envs)
+        self.objectives = spec.objectives
+        self.objective_names = tuple(o.name for o in spec.objectives)
+        self.reward_space = _reward_space(spec.objectives)
+        self.metadata = {"autoreset_mode": _TO_GYM[spec.autoreset], "render_modes": ["rgb_array"]}
+        self.cameras: tuple[str, ...] = ()  # the env's named cameras, known after a render()
+        self.render_fps = 0.0  # real-time frames per second (0 = unknown), known after a render()
+        # The last observation of every instance: a partial reset returns it for the others.
+        self._obs = create_empty_array(self.single_observation_space, self.num_envs, fn=np.zeros)
+
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset every instance, or those of options["reset_mask"] (bool [B])."""
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if options:
+            raise ValueError(f"options: expected at most the key 'reset_mask', got also {sorted(options)}")
+        indices = None if mask is None else self._masked(mask)
+        if isinstance(seed, (int, np.integer)):
+            self._np_random, self._np_random_seed = seeding.np_random(int(seed))
+        response = self._session.reset(indices or (), _reset_seeds(seed, indices, self.num_envs))
+        obs = tree(response.observation)
+        self._obs = obs if indices is None else _with_rows(self._obs, obs, indices)
+        infos: dict[str, Any] = {}
+        rows = range(self.num_envs) if indices is None else indices
+        for leaf in response.info:
+            value = from_tensor(leaf.tensor)
+            for pos, i in enumerate(rows):
+                self._add_info(infos, {leaf.name: value[pos]}, i)
+        return self._obs, infos
+
+    def _masked(self, mask: Any) -> list[int]:
+        arr = np.asarray(mask)
+        if arr.dtype != np.bool_ or arr.shape != (self.num_envs,) or not arr.any():
+            raise ValueError(
+                f"options['reset_mask']: expected bool [{self.num_envs}] (num_envs) with at least one True, "
+                f"got {arr.dtype} {list(arr.shape)} {arr.tolist()}"
+            )
+        return np.flatnonzero(arr).tolist()
+
+    def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every instance with actions [B, ...]; reward [B, K]."""
+        response = self._session.step(actions)
+        obs = self._obs = tree(response.observation)
+        infos: dict[str, Any] = {}
+        for leaf in response.info:
+            infos[leaf.name] = from_tensor(leaf.tensor)
+            infos[f"_{leaf.name}"] = np.ones(self.num_envs, np.bool_)
+        finals = tree(response.final_observation) if response.final_observation else None
+        for pos, e in enumerate(response.episodes):
+            i = e.env_index
+            ended: dict[str, Any] = {"server_episode": _episode(e)}
+            if finals is not None:
+                ended["final_obs"] = _at(finals, pos)
+                ended["final_info"] = {leaf.name: infos[leaf.name][i] for leaf in response.info}
+            self._add_info(infos, ended, i)
+        terminated = np.array(response.terminated, np.bool_)
+        truncated = np.array(response.truncated, np.bool_)
+        return obs, from_tensor(response.reward), terminated, truncated, infos
+
+    def render(self, env_indices: Sequence[int] = (), width: int = 0, height: int = 0, camera: str = "") -> np.ndarray:
+        """uint8 [len(env_indices) or B, height, width, 3]: the instances' current RGB frames.
+
+        0 = the server's default size (320 x 240); camera "" = the task's default view
+        (`cameras` lists the others once a frame was rendered).
+        """
+        response = self._session.render(env_indices, width, height, camera)
+        self.cameras = tuple(response.cameras)
+        self.render_fps = response.fps
+        return from_tensor(response.frames)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self._session.close()
+
+    def __enter__(self) -> RemoteVectorEnv:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 class RemoteEnv(gymnasium.Env):
@@ -235,18 +322,13 @@ class RemoteEnv(gymnasium.Env):
         self._render_args = (render_width, render_height, render_camera)
         self.metadata = {**self.metadata, "render_fps": render_fps}
         self._vec = RemoteVectorEnv(address, env_id, 1, seed, autoreset=Autoreset.DISABLED, **kwargs)
-        self._session = self._vec._session  # the hot path skips the vector env's decoding
+        self._session = self._vec._session  # the hot path skips the vector env's info building
         spec = self._session.spec
         self.observation_space = spec.observation_space
         self.action_space = spec.action_space
         self.objectives = spec.objectives
-        self.objective_names = tuple(o.name for o in spec.objectives)
-        self.reward_space = gymnasium.spaces.Box(
-            np.array([o.min for o in spec.objectives], np.float32),
-            np.array([o.max for o in spec.objectives], np.float32),
-            (len(spec.objectives),),
-            np.float32,
-        )
+        self.objective_names = self._vec.objective_names
+        self.reward_space = self._vec.reward_space
         self.max_episode_steps = spec.max_episode_steps or None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
