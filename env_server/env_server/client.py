@@ -9,6 +9,14 @@
 return the reward as a float32 vector of K entries, one per objective, and carry a
 `reward_space` of shape (K,), as MO-Gymnasium's envs and vector envs do.
 
+Importing this module registers every shipped env id with gymnasium as
+"env_server/<id>" (gymnasium 1.x has no plug-in discovery, so the import does it, or
+gymnasium does it for an id written "env_server.client:env_server/<id>"), and
+`gymnasium.make("env_server/dst", address=...)` builds a `RemoteEnv`,
+`gymnasium.make_vec("env_server/dst", num_envs=8, address=...)` a `RemoteVectorEnv`;
+`register(env_id)` adds any other id the server serves (plug-ins; "gym:...", "mo:..."
+and "dmc:..." ids with a `name=`).
+
 With `render_mode="rgb_array"` a `RemoteEnv`'s `render()` returns the current frame, so
 gymnasium's `RecordVideo` records it. Failed calls raise `RemoteError` (or a subclass)
 carrying the gRPC code and message; only UNAVAILABLE is retried, with exponential
@@ -45,6 +53,7 @@ from env_server.connection import (
     UnauthenticatedError,
     read_token_file,
 )
+from env_server.envs import REGISTRY
 from env_server.remote import RemoteSession, autoreset_mode, from_tensor, objectives, to_tensor, tree
 from env_server.session import Autoreset
 from env_server.task import Objective
@@ -62,8 +71,12 @@ __all__ = [  # the errors and token reader live in connection.py, the tensors in
     "from_tensor",
     "list_envs",
     "read_token_file",
+    "register",
     "to_tensor",
 ]
+
+NAMESPACE = "env_server"
+"""gymnasium ids of remote envs are "env_server/<server env id>"."""
 
 _TO_GYM = {
     Autoreset.SAME_STEP: AutoresetMode.SAME_STEP,
@@ -82,6 +95,33 @@ def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Obj
     finally:
         channel.close()
     return [(e.env_id, e.description, objectives(e.objectives)) for e in response.envs]
+
+
+def register(env_id: str, name: str | None = None) -> str:
+    """Registers a server env id with gymnasium as "env_server/<name>" (name defaults to the
+    env id) and returns that id: `make` builds a RemoteEnv, `make_vec` a RemoteVectorEnv,
+    both with `address=` and the keywords of their classes. gymnasium reads "module:" off
+    an id, so an env id with a colon ("gym:...", "mo:...", "dmc:...") needs a name."""
+    name = env_id if name is None else name
+    if ":" in name or "/" in name:
+        raise ValueError(
+            f"name: expected a gymnasium env name without ':' or '/' (gymnasium reads 'module:' and "
+            f"'namespace/' off an id), got {name!r}; pass one, e.g. register({env_id!r}, name=...)"
+        )
+    gym_id = f"{NAMESPACE}/{name}"
+    existing = gymnasium.registry.get(gym_id)
+    if existing is None:
+        gymnasium.register(
+            gym_id,
+            entry_point="env_server.client:RemoteEnv",
+            vector_entry_point="env_server.client:RemoteVectorEnv",
+            # gymnasium's checker warns on every vector reward; MO-Gymnasium's make turns it off too.
+            disable_env_checker=True,
+            kwargs={"env_id": env_id},
+        )
+    elif existing.kwargs.get("env_id") != env_id:
+        raise ValueError(f"name: {gym_id} is registered for env id {existing.kwargs.get('env_id')!r}, got {env_id!r}")
+    return gym_id
 
 
 def _reward_space(objs: Sequence[Objective]) -> gymnasium.spaces.Box:
@@ -355,3 +395,7 @@ class RemoteEnv(gymnasium.Env):
     def close(self) -> None:
         self._vec.close()
         super().close()
+
+
+for _env_id in REGISTRY:
+    register(_env_id)

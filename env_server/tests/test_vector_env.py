@@ -8,14 +8,19 @@ come out the same on both sides.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import gymnasium
 import numpy as np
 import pytest
+from conftest import server_env
 from gymnasium.utils.env_checker import data_equivalence
 from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers import vector as wrappers
 
-from env_server.client import RemoteVectorEnv
+from env_server.client import RemoteEnv, RemoteVectorEnv, register
+from env_server.envs import REGISTRY
 
 B = 2
 STEPS = 205  # past Pendulum's 200-step time limit
@@ -173,3 +178,52 @@ def test_bad_autoreset_names_the_field(address: str) -> None:
         str(info.value)
         == "autoreset: expected an Autoreset or one of ['same_step', 'next_step', 'disabled'], got 'sometimes'"
     )
+
+
+def test_gymnasium_make_and_make_vec_build_remote_envs(address: str) -> None:
+    assert all(f"env_server/{env_id}" in gymnasium.registry for env_id in REGISTRY)
+    env = gymnasium.make("env_server/dst", address=address)
+    try:
+        assert isinstance(env.unwrapped, RemoteEnv) and env.spec.id == "env_server/dst"
+        env.reset(seed=0)
+        _, reward, terminated, _, _ = env.step(2)  # down onto the 0.7 treasure
+        assert terminated and reward.tolist() == pytest.approx([-1, 0.7])
+    finally:
+        env.close()
+    envs = gymnasium.make_vec("env_server/dst", num_envs=3, address=address, autoreset="next_step")
+    try:
+        assert isinstance(envs, RemoteVectorEnv) and envs.num_envs == 3 and envs.spec.id == "env_server/dst"
+        assert envs.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+        assert envs.reset(seed=0)[0].shape == (3, 2)
+    finally:
+        envs.close()
+
+
+def test_register_names_a_prefix_id(address: str) -> None:
+    with pytest.raises(ValueError) as info:
+        register("gym:Pendulum-v1")
+    assert str(info.value).startswith("name: expected a gymnasium env name without ':' or '/'")
+    assert register("gym:Pendulum-v1", name="Pendulum-v1") == "env_server/Pendulum-v1"
+    envs = gymnasium.make_vec("env_server/Pendulum-v1", num_envs=2, address=address)
+    try:
+        assert envs.reward_space.shape == (1,) and envs.single_action_space.shape == (1,)
+    finally:
+        envs.close()
+    with pytest.raises(ValueError) as info:
+        register("mo:deep-sea-treasure-v0", name="Pendulum-v1")
+    assert (
+        str(info.value)
+        == "name: env_server/Pendulum-v1 is registered for env id 'gym:Pendulum-v1', got 'mo:deep-sea-treasure-v0'"
+    )
+
+
+def test_gymnasium_imports_the_client_for_a_module_qualified_id(address: str) -> None:
+    """gymnasium 1.x has no plug-in discovery: a fresh process that has not imported
+    env_server names the module in the id, and gymnasium imports it."""
+    code = (
+        "import gymnasium, sys; assert 'env_server.client' not in sys.modules; "
+        f"envs = gymnasium.make_vec('env_server.client:env_server/dst', num_envs=2, address={address!r}); "
+        "print(type(envs).__name__, envs.num_envs); envs.close()"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=server_env(), check=True)
+    assert out.stdout.split() == ["RemoteVectorEnv", "2"]
