@@ -7,13 +7,21 @@ take about 11 s on one CPU thread; on seeds 0-2 the mean episodic return went fr
 -1200 in the first three iterations to -200..-350 in the last three, so the test asks for
 a gain of 400, well inside what every seed reached. Seeded: the server seeds the
 instances and torch the policy, on one thread.
+
+The loop runs in a child process (this file as a script): torch.optim imports triton,
+whose LLVM crashed (SIGSEGV) a pytest process that had loaded MuJoCo's GL libraries for
+the render tests before it.
 """
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import torch
-from conftest import running_server
+from conftest import running_server, server_env
 from gymnasium.wrappers import vector as wrappers
 from torch import nn
 
@@ -123,13 +131,17 @@ def train(address: str) -> list[float]:
 
 
 def test_ppo_improves_the_episodic_return_on_remote_pendulum() -> None:
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    torch.manual_seed(SEED)
-    try:
-        with running_server() as address:  # the default front, the one a user gets
-            mean_returns = train(address)
-    finally:
-        torch.set_num_threads(threads)
+    with running_server() as address:  # the default front, the one a user gets
+        out = subprocess.run(
+            [sys.executable, __file__, address], capture_output=True, text=True, env=server_env(), timeout=300
+        )
+    assert out.returncode == 0, out.stderr[-3000:]
+    mean_returns = json.loads(out.stdout.splitlines()[-1])
     early, late = np.mean(mean_returns[:3]), np.mean(mean_returns[-3:])
     assert late > early + 400, f"mean episodic return {early:.0f} -> {late:.0f}: {np.round(mean_returns)}"
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    torch.manual_seed(SEED)
+    print(json.dumps(train(sys.argv[1])))
