@@ -1,15 +1,26 @@
-"""A thin Python client for mo_env.v1.
+"""A thin Python client for mo_env.v1: gymnasium envs whose reward is a vector.
 
-    with RemoteVectorEnv("127.0.0.1:50051", "dst", num_envs=8, seed=0) as env:
-        obs = env.reset()
-        obs, reward, terminated, truncated, infos = env.step(actions)   # reward [B, K]
+    with RemoteVectorEnv("127.0.0.1:50051", "dst", num_envs=8, seed=0) as envs:
+        obs, infos = envs.reset()
+        obs, reward, terminated, truncated, infos = envs.step(actions)   # reward [B, K]
 
-`RemoteEnv` is a single-instance `gymnasium.Env` whose reward is a float32 vector of K
-entries, like MO-Gymnasium (with a `reward_space` attribute); with
-`render_mode="rgb_array"` its `render()` returns the current frame, so gymnasium's
-`RecordVideo` records it. Failed calls raise
-`RemoteError` (or a subclass) carrying the gRPC code and message; only UNAVAILABLE
-is retried, with exponential backoff.
+`RemoteVectorEnv` is one server session of num_envs instances as a
+`gymnasium.vector.VectorEnv`, and `RemoteEnv` one instance as a `gymnasium.Env`. Both
+return the reward as a float32 vector of K entries, one per objective, and carry a
+`reward_space` of shape (K,), as MO-Gymnasium's envs and vector envs do.
+
+Importing this module registers every shipped env id with gymnasium as
+"env_server/<id>" (gymnasium 1.x has no plug-in discovery, so the import does it, or
+gymnasium does it for an id written "env_server.client:env_server/<id>"), and
+`gymnasium.make("env_server/dst", address=...)` builds a `RemoteEnv`,
+`gymnasium.make_vec("env_server/dst", num_envs=8, address=...)` a `RemoteVectorEnv`;
+`register(env_id)` adds any other id the server serves (plug-ins; "gym:...", "mo:..."
+and "dmc:..." ids with a `name=`).
+
+With `render_mode="rgb_array"` a `RemoteEnv`'s `render()` returns the current frame, so
+gymnasium's `RecordVideo` records it. Failed calls raise `RemoteError` (or a subclass)
+carrying the gRPC code and message; only UNAVAILABLE is retried, with exponential
+backoff, and never a Step (one sent may have been applied).
 
 A server on another host (started with --tls-cert and --auth-token-file) is reached
 with an `https://host:port` address (or `tls_ca=`, which implies TLS), `tls_ca=` the CA
@@ -20,15 +31,15 @@ file that signed its certificate (default: the system's roots), `token=` or
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from typing import Any
 
-import grpc
 import gymnasium
 import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space, create_empty_array
 
-from env_server import spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import (
     Channel,
@@ -42,19 +53,12 @@ from env_server.connection import (
     UnauthenticatedError,
     read_token_file,
 )
-from env_server.session import Autoreset, SessionSpec
+from env_server.envs import REGISTRY
+from env_server.remote import RemoteSession, autoreset_mode, from_tensor, objectives, to_tensor, tree
+from env_server.session import Autoreset
 from env_server.task import Objective
 
-_PB_TO_DTYPE = {
-    pb.DTYPE_FLOAT32: np.dtype(np.float32),
-    pb.DTYPE_FLOAT64: np.dtype(np.float64),
-    pb.DTYPE_INT32: np.dtype(np.int32),
-    pb.DTYPE_INT64: np.dtype(np.int64),
-    pb.DTYPE_UINT8: np.dtype(np.uint8),
-    pb.DTYPE_BOOL: np.dtype(np.bool_),
-}
-_DTYPE_TO_PB = {dtype.name: code for code, dtype in _PB_TO_DTYPE.items()}
-__all__ = [  # the errors and token reader live in connection.py; users import them from here
+__all__ = [  # the errors and token reader live in connection.py, the tensors in remote.py
     "FailedPreconditionError",
     "InvalidArgumentError",
     "NotFoundError",
@@ -67,55 +71,19 @@ __all__ = [  # the errors and token reader live in connection.py; users import t
     "from_tensor",
     "list_envs",
     "read_token_file",
+    "register",
     "to_tensor",
 ]
 
+NAMESPACE = "env_server"
+"""gymnasium ids of remote envs are "env_server/<server env id>"."""
 
-def to_tensor(arr: np.ndarray) -> pb.Tensor:
-    """A numpy array as a wire Tensor (little-endian, row-major)."""
-    arr = np.ascontiguousarray(arr)
-    return pb.Tensor(dtype=_DTYPE_TO_PB[arr.dtype.name], shape=arr.shape, data=arr.tobytes())
-
-
-def from_tensor(tensor: pb.Tensor) -> np.ndarray:
-    """A wire Tensor as a numpy array (a read-only view of the message bytes)."""
-    return np.frombuffer(tensor.data, dtype=_PB_TO_DTYPE[tensor.dtype]).reshape(tuple(tensor.shape))
-
-
-def _space_spec(space: pb.Space) -> dict[str, Any]:
-    kind = space.WhichOneof("kind")
-    if kind == "dict":
-        return {"dict": [(e.name, _space_spec(e.space)) for e in space.dict.entries]}
-    if kind == "discrete":
-        return {"discrete": {"n": space.discrete.n, "start": space.discrete.start}}
-    box = space.box
-    return {
-        "box": {
-            "dtype": _PB_TO_DTYPE[box.dtype].name,
-            "shape": list(box.shape),
-            "low": list(box.low),
-            "high": list(box.high),
-        }
-    }
-
-
-def _objectives(specs: Sequence[pb.ObjectiveSpec]) -> tuple[Objective, ...]:
-    # A scale of 0 comes from servers older than the field: nothing was scaled.
-    return tuple(Objective(o.name, o.description, o.min, o.max, o.scale or 1.0) for o in specs)
-
-
-def _tree(named: Sequence[pb.NamedTensor]) -> Any:
-    """Leaves back into the observation: one unnamed leaf is the array itself."""
-    if len(named) == 1 and not named[0].name:
-        return from_tensor(named[0].tensor)
-    out: dict[str, Any] = {}
-    for leaf in named:
-        *parents, last = leaf.name.split(".")
-        node = out
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[last] = from_tensor(leaf.tensor)
-    return out
+_TO_GYM = {
+    Autoreset.SAME_STEP: AutoresetMode.SAME_STEP,
+    Autoreset.NEXT_STEP: AutoresetMode.NEXT_STEP,
+    Autoreset.DISABLED: AutoresetMode.DISABLED,
+}
+_FROM_GYM = {mode: autoreset for autoreset, mode in _TO_GYM.items()}
 
 
 def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Objective, ...]]]:
@@ -126,11 +94,108 @@ def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Obj
         response = channel.call(channel.stub.ListEnvs, pb.ListEnvsRequest())
     finally:
         channel.close()
-    return [(e.env_id, e.description, _objectives(e.objectives)) for e in response.envs]
+    return [(e.env_id, e.description, objectives(e.objectives)) for e in response.envs]
 
 
-class RemoteVectorEnv:
-    """A remote session of num_envs instances, stepped as one batch."""
+def register(env_id: str, name: str | None = None) -> str:
+    """Registers a server env id with gymnasium as "env_server/<name>" (name defaults to the
+    env id) and returns that id: `make` builds a RemoteEnv, `make_vec` a RemoteVectorEnv,
+    both with `address=` and the keywords of their classes. gymnasium reads "module:" off
+    an id, so an env id with a colon ("gym:...", "mo:...", "dmc:...") needs a name."""
+    name = env_id if name is None else name
+    if ":" in name or "/" in name:
+        raise ValueError(
+            f"name: expected a gymnasium env name without ':' or '/' (gymnasium reads 'module:' and "
+            f"'namespace/' off an id), got {name!r}; pass one, e.g. register({env_id!r}, name=...)"
+        )
+    gym_id = f"{NAMESPACE}/{name}"
+    existing = gymnasium.registry.get(gym_id)
+    if existing is None:
+        gymnasium.register(
+            gym_id,
+            entry_point="env_server.client:RemoteEnv",
+            vector_entry_point="env_server.client:RemoteVectorEnv",
+            # gymnasium's checker warns on every vector reward; MO-Gymnasium's make turns it off too.
+            disable_env_checker=True,
+            kwargs={"env_id": env_id},
+        )
+    elif existing.kwargs.get("env_id") != env_id:
+        raise ValueError(f"name: {gym_id} is registered for env id {existing.kwargs.get('env_id')!r}, got {env_id!r}")
+    return gym_id
+
+
+def _reward_space(objs: Sequence[Objective]) -> gymnasium.spaces.Box:
+    low = np.array([o.min for o in objs], np.float32)
+    high = np.array([o.max for o in objs], np.float32)
+    return gymnasium.spaces.Box(low, high, (len(objs),), np.float32)
+
+
+def _episode(e: pb.EpisodeEnd) -> dict[str, Any]:
+    """The server's record of an ended episode: vector returns [K], length, how it ended."""
+    return {
+        "episode_return": np.array(e.episode_return),
+        "discounted_return": np.array(e.discounted_return),
+        "length": e.length,
+        "terminated": e.terminated,
+        "truncated": e.truncated,
+    }
+
+
+def _at(obs: Any, i: int) -> Any:
+    """Instance i of a batched observation (an array or a dict tree of arrays)."""
+    return {k: _at(v, i) for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
+
+
+def _with_rows(obs: Any, rows: Any, indices: list[int]) -> Any:
+    """A copy of a batched observation with `rows` written at `indices`."""
+    if isinstance(obs, dict):
+        return {k: _with_rows(obs[k], rows[k], indices) for k in obs}
+    out = np.array(obs)
+    out[indices] = rows
+    return out
+
+
+def _reset_seeds(seed: int | Sequence[int | None] | None, indices: list[int] | None, num_envs: int) -> list[int]:
+    """ResetRequest.seeds for gymnasium's `seed`: an int s gives instance i the seed s + i."""
+    if seed is None:
+        return []
+    if isinstance(seed, (int, np.integer)):
+        return [int(seed)] if indices is None else [int(seed) + i for i in indices]
+    seeds = list(seed)
+    if len(seeds) != num_envs:
+        raise ValueError(f"seed: expected None, an int or {num_envs} seeds (one per instance), got {len(seeds)}")
+    chosen = seeds if indices is None else [seeds[i] for i in indices]
+    if all(s is None for s in chosen):
+        return []
+    if any(s is None for s in chosen):
+        raise ValueError(
+            f"seed: expected a seed for every instance reset or None for all of them (the server "
+            f"seeds a Reset's instances all or none), got {chosen}"
+        )
+    return [int(s) for s in chosen]
+
+
+class RemoteVectorEnv(gymnasium.vector.VectorEnv):
+    """A remote session of num_envs instances as a gymnasium VectorEnv, stepped as one batch.
+
+    The reward is float32 [B, K] with `reward_space` Box (K,), as MO-Gymnasium's vector envs
+    have it; `objectives` and `objective_names` say which objective each column is.
+    `metadata["autoreset_mode"]` is the session's `autoreset` (SAME_STEP by default, also
+    "next_step" or "disabled", or gymnasium's AutoresetMode). reset(seed=s) gives instance i
+    the seed s + i; `options={"reset_mask": mask}` resets only the masked instances.
+
+    Infos are gymnasium vector infos: each requested `info_keys` entry is an array [B, ...]
+    with a `_key` mask; an instance whose episode ended has the server's record of it under
+    `infos["server_episode"]` (`episode_return` and `discounted_return` [B, K], `length`,
+    `terminated`, `truncated`, each masked), and under SAME_STEP its last observation in
+    `infos["final_obs"]` and last info in `infos["final_info"]`, as gymnasium's SyncVectorEnv
+    puts them. The key "episode" is left to gymnasium's RecordEpisodeStatistics and
+    MO-Gymnasium's MORecordEpisodeStatistics, which write it (the latter counts with
+    NEXT_STEP autoreset). Observations are read-only views of the received message.
+
+    num_workers >= 1 asks the server to step the instances in that many processes. The tls_*
+    and token keywords are the module doc's; other kwargs go to the env's constructor.
+    """
 
     def __init__(
         self,
@@ -139,7 +204,7 @@ class RemoteVectorEnv:
         num_envs: int,
         seed: int | None = None,
         *,
-        autoreset: Autoreset | str = Autoreset.SAME_STEP,
+        autoreset: Autoreset | AutoresetMode | str = Autoreset.SAME_STEP,
         discount: float | None = None,
         info_keys: Sequence[str] = (),
         num_workers: int = 0,
@@ -151,92 +216,91 @@ class RemoteVectorEnv:
         token_file: PathLike | None = None,
         **kwargs: Any,
     ) -> None:
-        """num_workers >= 1 asks the server to step the instances in that many processes.
-        The tls_* and token keywords are the module doc's; other kwargs go to the env."""
-        self._channel = Channel(
+        mode = _FROM_GYM[autoreset] if isinstance(autoreset, AutoresetMode) else autoreset_mode(autoreset)
+        self._session = RemoteSession(
             address,
-            max_message_mb,
+            env_id,
+            num_envs,
+            seed,
+            autoreset=mode,
+            discount=discount,
+            info_keys=info_keys,
+            num_workers=num_workers,
+            max_message_mb=max_message_mb,
             tls_ca=tls_ca,
             tls_client_cert=tls_client_cert,
             tls_client_key=tls_client_key,
             token=token,
             token_file=token_file,
+            kwargs=kwargs,
         )
-        if isinstance(autoreset, str):
-            autoreset = Autoreset[autoreset.upper()]
-        request = pb.MakeRequest(
-            env_id=env_id,
-            num_envs=num_envs,
-            kwargs_json=json.dumps(kwargs) if kwargs else "",
-            autoreset_mode=int(autoreset),
-            info_keys=list(info_keys),
-            num_workers=num_workers,
-        )
-        if seed is not None:
-            request.seed = seed
-        if discount is not None:
-            request.discount = discount
-        response = self._channel.call(self._channel.stub.Make, request)
-        self.session_id: str = response.session_id
-        self.lease_seconds: float = response.lease_seconds
-        s = response.spec
-        self.spec = SessionSpec(
-            env_id=s.env_id,
-            num_envs=s.num_envs,
-            observation_space=spaces.spec_to_space(_space_spec(s.observation_space)),
-            action_space=spaces.spec_to_space(_space_spec(s.action_space)),
-            objectives=_objectives(s.objectives),
-            max_episode_steps=s.max_episode_steps,
-            autoreset=Autoreset(s.autoreset_mode),
-            discount=s.discount,
-            info_keys=tuple(s.info_keys),
-        )
-        self.num_envs = s.num_envs
-        self._action_dtype = spaces.leaf_dtype(self.spec.action_space)
+        spec = self.session_spec = self._session.spec
+        self.session_id = self._session.session_id
+        self.lease_seconds = self._session.lease_seconds
+        self.num_envs = spec.num_envs
+        self.single_observation_space = spec.observation_space
+        self.single_action_space = spec.action_space
+        self.observation_space = batch_space(spec.observation_space, self.num_envs)
+        self.action_space = batch_space(spec.action_space, self.num_envs)
+        self.objectives = spec.objectives
+        self.objective_names = tuple(o.name for o in spec.objectives)
+        self.reward_space = _reward_space(spec.objectives)
+        self.metadata = {"autoreset_mode": _TO_GYM[spec.autoreset], "render_modes": ["rgb_array"]}
         self.cameras: tuple[str, ...] = ()  # the env's named cameras, known after a render()
         self.render_fps = 0.0  # real-time frames per second (0 = unknown), known after a render()
-        self.closed = False
+        # The last observation of every instance: a partial reset returns it for the others.
+        self._obs = create_empty_array(self.single_observation_space, self.num_envs, fn=np.zeros)
 
-    def reset(self, seed: int | Sequence[int] | None = None, env_indices: Sequence[int] = ()) -> Any:
-        """Reset instances (all by default); an int seed gives instance i the seed + i."""
-        seeds = [] if seed is None else [seed] if isinstance(seed, (int, np.integer)) else list(seed)
-        request = pb.ResetRequest(session_id=self.session_id, env_indices=list(env_indices), seeds=seeds)
-        return _tree(self._channel.call(self._channel.stub.Reset, request).observation)
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset every instance, or those of options["reset_mask"] (bool [B])."""
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if options:
+            raise ValueError(f"options: expected at most the key 'reset_mask', got also {sorted(options)}")
+        indices = None if mask is None else self._masked(mask)
+        if isinstance(seed, (int, np.integer)):
+            self._np_random, self._np_random_seed = seeding.np_random(int(seed))
+        response = self._session.reset(indices or (), _reset_seeds(seed, indices, self.num_envs))
+        obs = tree(response.observation)
+        self._obs = obs if indices is None else _with_rows(self._obs, obs, indices)
+        infos: dict[str, Any] = {}
+        rows = range(self.num_envs) if indices is None else indices
+        for leaf in response.info:
+            value = from_tensor(leaf.tensor)
+            for pos, i in enumerate(rows):
+                self._add_info(infos, {leaf.name: value[pos]}, i)
+        return self._obs, infos
+
+    def _masked(self, mask: Any) -> list[int]:
+        arr = np.asarray(mask)
+        if arr.dtype != np.bool_ or arr.shape != (self.num_envs,) or not arr.any():
+            raise ValueError(
+                f"options['reset_mask']: expected bool [{self.num_envs}] (num_envs) with at least one True, "
+                f"got {arr.dtype} {list(arr.shape)} {arr.tolist()}"
+            )
+        return np.flatnonzero(arr).tolist()
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every instance; infos holds "episodes", maybe "final_observation", and info keys."""
-        action = to_tensor(np.asarray(actions, dtype=self._action_dtype))
-        response = self._channel.call(
-            self._channel.stub.Step, pb.StepRequest(session_id=self.session_id, action=action)
-        )
-        return self.decode_step(response)
-
-    @staticmethod
-    def decode_step(response: pb.StepResponse) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        infos: dict[str, Any] = {
-            "episodes": [
-                {
-                    "env_index": e.env_index,
-                    "episode_return": np.array(e.episode_return),
-                    "discounted_return": np.array(e.discounted_return),
-                    "length": e.length,
-                    "terminated": e.terminated,
-                    "truncated": e.truncated,
-                }
-                for e in response.episodes
-            ]
-        }
-        if response.final_observation:
-            infos["final_observation"] = _tree(response.final_observation)
+        """Step every instance with actions [B, ...]; reward [B, K]."""
+        response = self._session.step(actions)
+        obs = self._obs = tree(response.observation)
+        infos: dict[str, Any] = {}
         for leaf in response.info:
             infos[leaf.name] = from_tensor(leaf.tensor)
-        return (
-            _tree(response.observation),
-            from_tensor(response.reward),
-            np.array(response.terminated, np.bool_),
-            np.array(response.truncated, np.bool_),
-            infos,
-        )
+            infos[f"_{leaf.name}"] = np.ones(self.num_envs, np.bool_)
+        finals = tree(response.final_observation) if response.final_observation else None
+        for pos, e in enumerate(response.episodes):
+            i = e.env_index
+            ended: dict[str, Any] = {"server_episode": _episode(e)}
+            if finals is not None:
+                ended["final_obs"] = _at(finals, pos)
+                ended["final_info"] = {leaf.name: infos[leaf.name][i] for leaf in response.info}
+            self._add_info(infos, ended, i)
+        terminated = np.array(response.terminated, np.bool_)
+        truncated = np.array(response.truncated, np.bool_)
+        return obs, from_tensor(response.reward), terminated, truncated, infos
 
     def render(self, env_indices: Sequence[int] = (), width: int = 0, height: int = 0, camera: str = "") -> np.ndarray:
         """uint8 [len(env_indices) or B, height, width, 3]: the instances' current RGB frames.
@@ -244,40 +308,19 @@ class RemoteVectorEnv:
         0 = the server's default size (320 x 240); camera "" = the task's default view
         (`cameras` lists the others once a frame was rendered).
         """
-        request = pb.RenderRequest(
-            session_id=self.session_id, env_indices=list(env_indices), width=width, height=height, camera=camera
-        )
-        response = self._channel.call(self._channel.stub.Render, request)
+        response = self._session.render(env_indices, width, height, camera)
         self.cameras = tuple(response.cameras)
         self.render_fps = response.fps
         return from_tensor(response.frames)
 
-    def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        request = pb.CloseRequest(session_id=self.session_id)
-        try:
-            try:
-                self._channel.call(self._channel.stub.CloseSession, request)
-            except RemoteError as exc:
-                if exc.code != grpc.StatusCode.UNIMPLEMENTED:
-                    raise
-                self._channel.call(self._channel.stub.Close, request)  # a server from before CloseSession
-        except NotFoundError:
-            pass  # already expired on the server
-        finally:
-            self._channel.close()
+    def close_extras(self, **kwargs: Any) -> None:
+        self._session.close()
 
     def __enter__(self) -> RemoteVectorEnv:
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
-
-
-def _first(tree: Any) -> Any:
-    return {k: _first(v) for k, v in tree.items()} if isinstance(tree, dict) else tree[0]
 
 
 class RemoteEnv(gymnasium.Env):
@@ -319,30 +362,28 @@ class RemoteEnv(gymnasium.Env):
         self._render_args = (render_width, render_height, render_camera)
         self.metadata = {**self.metadata, "render_fps": render_fps}
         self._vec = RemoteVectorEnv(address, env_id, 1, seed, autoreset=Autoreset.DISABLED, **kwargs)
-        spec = self._vec.spec
+        self._session = self._vec._session  # the hot path skips the vector env's info building
+        spec = self._session.spec
         self.observation_space = spec.observation_space
         self.action_space = spec.action_space
         self.objectives = spec.objectives
-        self.objective_names = tuple(o.name for o in spec.objectives)
-        self.reward_space = gymnasium.spaces.Box(
-            np.array([o.min for o in spec.objectives], np.float32),
-            np.array([o.max for o in spec.objectives], np.float32),
-            (len(spec.objectives),),
-            np.float32,
-        )
+        self.objective_names = self._vec.objective_names
+        self.reward_space = self._vec.reward_space
         self.max_episode_steps = spec.max_episode_steps or None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         super().reset(seed=seed)
-        return _first(self._vec.reset(seed=seed)), {}
+        response = self._session.reset((), () if seed is None else (seed,))
+        info = {leaf.name: from_tensor(leaf.tensor)[0] for leaf in response.info}
+        return _at(tree(response.observation), 0), info
 
     def step(self, action: Any) -> tuple[Any, np.ndarray, bool, bool, dict[str, Any]]:
-        batch = np.asarray(action)[None]
-        obs, reward, terminated, truncated, infos = self._vec.step(batch)
-        info: dict[str, Any] = {k: _first(v) for k, v in infos.items() if k not in ("episodes", "final_observation")}
-        if infos["episodes"]:
-            info["server_episode"] = infos["episodes"][0]
-        return _first(obs), reward[0].copy(), bool(terminated[0]), bool(truncated[0]), info
+        response = self._session.step(np.asarray(action)[None])
+        info: dict[str, Any] = {leaf.name: from_tensor(leaf.tensor)[0] for leaf in response.info}
+        if response.episodes:
+            info["server_episode"] = _episode(response.episodes[0])
+        reward = from_tensor(response.reward)[0].copy()
+        return _at(tree(response.observation), 0), reward, response.terminated[0], response.truncated[0], info
 
     def render(self) -> np.ndarray | None:
         """The current frame (render_mode "rgb_array"), else None as gymnasium's envs do."""
@@ -354,3 +395,7 @@ class RemoteEnv(gymnasium.Env):
     def close(self) -> None:
         self._vec.close()
         super().close()
+
+
+for _env_id in REGISTRY:
+    register(_env_id)

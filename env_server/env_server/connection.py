@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import queue
 import time
 from collections.abc import Callable
 from typing import Any
@@ -135,8 +136,43 @@ class Channel:
             delay = min(delay * 2, 2.0)
         raise AssertionError("unreachable")
 
+    def open_stream(self, method: Callable[..., Any]) -> Stream:
+        """A bidirectional stream on `method` (e.g. stub.StepStream), one response per request."""
+        return Stream(method, self.metadata)
+
     def close(self) -> None:
         self.channel.close()
+
+
+class Stream:
+    """A bidirectional stream stepped in lockstep: `call` sends one request and waits for its
+    response. Not retried, since a request sent may have been applied: after a failed call
+    the stream is closed (`open` is False), and the caller opens a new one."""
+
+    def __init__(self, method: Callable[..., Any], metadata: tuple[tuple[str, str], ...]) -> None:
+        # grpc's sync API reads requests from an iterator on its own thread; a queue feeds it,
+        # and None ends the iterator, which half-closes the stream.
+        self._requests: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._responses = method(iter(self._requests.get, None), metadata=metadata)
+        self.open = True
+
+    def call(self, request: Any) -> Any:
+        if not self.open:
+            raise RuntimeError("this stream failed or was closed; open a new one")
+        self._requests.put(request)
+        try:
+            return next(self._responses)
+        except grpc.RpcError as exc:
+            self.close()
+            raise _error(exc) from None
+        except StopIteration:
+            self.close()
+            raise RemoteError(grpc.StatusCode.UNKNOWN, "the server ended the stream without answering") from None
+
+    def close(self) -> None:
+        if self.open:
+            self.open = False
+            self._requests.put(None)
 
 
 def _read(path: PathLike | None) -> bytes | None:

@@ -40,13 +40,13 @@ def strip(address: str, env_id: str, steps: int, script: list[int] | None) -> Im
     # Autoreset off, so the frames after an episode's end show how it ended.
     with RemoteVectorEnv(address, env_id, 1, seed=0, autoreset="disabled") as env:
         env.reset()
-        env.spec.action_space.seed(0)
+        env.session_spec.action_space.seed(0)
         at = set(np.linspace(0, steps, FRAMES).round().astype(int).tolist())
         frames = [env.render(width=WIDTH, height=HEIGHT)[0]] if 0 in at else []
         ended = False
         for t in range(1, steps + 1):
             if not ended:
-                action = script[t - 1] if script else env.spec.action_space.sample()
+                action = script[t - 1] if script else env.session_spec.action_space.sample()
                 _, _, terminated, truncated, _ = env.step(np.asarray(action)[None])
                 ended = bool(terminated[0] or truncated[0])
             if t in at:

@@ -13,7 +13,7 @@ import pytest
 from conftest import server_env
 from gymnasium.utils.env_checker import check_env
 
-from env_server.client import NotFoundError, RemoteEnv, RemoteVectorEnv, list_envs
+from env_server.client import InvalidArgumentError, NotFoundError, RemoteEnv, RemoteVectorEnv, list_envs
 from env_server.envs import REGISTRY
 
 
@@ -33,6 +33,24 @@ def test_remote_env_is_a_gymnasium_env_with_vector_reward(address: str) -> None:
         np.testing.assert_allclose(reward, [-1, 0.7], rtol=1e-6)
         assert terminated and not truncated and info["server_episode"]["length"] == 1
         assert obs.tolist() == [1, 0]  # autoreset is off: the caller resets
+    finally:
+        env.close()
+
+
+def test_a_refused_step_leaves_the_remote_env_usable(address: str) -> None:
+    """Steps ride a StepStream, which a refused action ends; the next step opens another
+    on the same session, and the episode goes on where it was."""
+    env = RemoteEnv(address, "dst")
+    try:
+        env.reset(seed=0)
+        env.step(1)  # right
+        with pytest.raises(InvalidArgumentError) as info:
+            env.step(7)
+        assert "action" in info.value.message and "7" in info.value.message
+        env.step(2)  # down
+        obs, reward, terminated, _, info = env.step(2)  # down onto the 8.2 treasure
+        assert obs.tolist() == [2, 1] and terminated and info["server_episode"]["length"] == 3
+        np.testing.assert_allclose(reward, [-1, 8.2], rtol=1e-6)
     finally:
         env.close()
 
@@ -85,11 +103,11 @@ def test_check_env(address: str, env_id: str) -> None:
 
 def test_remote_vector_env_round_trip(address: str) -> None:
     with RemoteVectorEnv(address, "dmc:cartpole-swingup", 3, seed=5) as env:
-        assert [o.name for o in env.spec.objectives] == ["reward"]
-        obs = env.reset()
-        assert obs.shape == (3, 5) and obs.dtype == np.float32
+        assert env.objective_names == ("reward",)
+        obs, infos = env.reset()
+        assert obs.shape == (3, 5) and obs.dtype == np.float32 and infos == {}
         obs, reward, terminated, truncated, infos = env.step(np.zeros((3, 1)))
-        assert reward.shape == (3, 1) and terminated.shape == (3,) and infos["episodes"] == []
+        assert reward.shape == (3, 1) and terminated.shape == (3,) and infos == {}
     with pytest.raises(NotFoundError) as info:
         RemoteVectorEnv(address, "no-such-env", 1)
     assert info.value.code == grpc.StatusCode.NOT_FOUND
@@ -116,17 +134,20 @@ def test_cli_list() -> None:
 
 def test_dict_observation_round_trip(address: str) -> None:
     with RemoteVectorEnv(address, "dict-obs", 2, seed=1) as env:
-        space = env.spec.observation_space
+        space = env.single_observation_space
         assert isinstance(space, gymnasium.spaces.Dict)
         # gymnasium sorts a plain dict's keys; the wire keeps the task's (sorted) order.
         assert list(space.spaces) == ["goal", "pos"] and space["goal"]["index"] == gymnasium.spaces.Discrete(3)
-        obs = env.reset()
+        obs, _ = env.reset()
+        assert env.observation_space.contains(obs)
         assert obs["pos"].shape == (2, 2) and obs["pos"].dtype == np.float64
         assert obs["goal"]["index"].shape == (2,) and obs["goal"]["index"].dtype == np.int64
         expected_goals = [int(np.random.default_rng(1 + i).integers(3)) for i in range(2)]
         assert obs["goal"]["index"].tolist() == expected_goals
         obs, *_ = env.step(np.array([[0.5, -0.25], [1.0, 1.0]], np.float32))
         assert obs["pos"].tolist() == [[0.5, -0.25], [1.0, 1.0]]
+        obs, _ = env.reset(options={"reset_mask": np.array([False, True])})  # instance 0 keeps its leaves
+        assert obs["pos"].tolist() == [[0.5, -0.25], [0.0, 0.0]] and env.observation_space.contains(obs)
 
 
 def test_record_video(address, tmp_path) -> None:

@@ -21,15 +21,15 @@ def _actions(space: gymnasium.spaces.Space, seed: int) -> np.ndarray:
 
 def _rollout(address: str, env_id: str, seed: int, actions: np.ndarray):
     with RemoteVectorEnv(address, env_id, B, seed=seed) as env:
-        first = np.array(env.reset(), copy=True)
+        first = np.array(env.reset()[0], copy=True)
         out = [env.step(a) for a in actions]
-    return env.spec, first, out
+    return env.session_spec, first, out
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_conformance(address: str, env_id: str) -> None:
     with RemoteVectorEnv(address, env_id, B, seed=0) as env:
-        spec = env.spec
+        spec = env.session_spec
         actions = _actions(spec.action_space, 0)
     names = [o.name for o in spec.objectives]
     assert names and len(set(names)) == len(names), names
@@ -53,15 +53,18 @@ def test_conformance(address: str, env_id: str) -> None:
         since_reset += 1
         returns += reward
         done = terminated | truncated
-        assert [e["env_index"] for e in infos["episodes"]] == np.flatnonzero(done).tolist()
-        for e in infos["episodes"]:
-            i = e["env_index"]
-            assert e["length"] == since_reset[i]
-            np.testing.assert_allclose(e["episode_return"], returns[i], rtol=1e-5, atol=1e-5)
+        if done.any():
+            assert infos["_server_episode"].tolist() == done.tolist()
+            assert infos["_final_obs"].tolist() == done.tolist()
+        else:
+            assert "server_episode" not in infos and "final_obs" not in infos
+        for i in np.flatnonzero(done):
+            e = infos["server_episode"]
+            assert e["length"][i] == since_reset[i]
+            np.testing.assert_allclose(e["episode_return"][i], returns[i], rtol=1e-5, atol=1e-5)
+            assert obs_space.contains(infos["final_obs"][i])
             since_reset[i] = 0
             returns[i] = 0
-        if done.any():
-            assert len(infos["final_observation"]) == done.sum()
 
     # Same seed and actions -> identical observations and rewards.
     _, first_again, steps_again = _rollout(address, env_id, 7, actions)
@@ -76,7 +79,7 @@ def test_renders(address: str, env_id: str) -> None:
     """Every env draws a frame of the asked size that shows something (not one flat colour)."""
     with RemoteVectorEnv(address, env_id, 1, seed=0) as env:
         env.reset()
-        env.step(_actions(env.spec.action_space, 0)[0][:1])
+        env.step(_actions(env.session_spec.action_space, 0)[0][:1])
         frames = env.render(width=64, height=48)
         assert env.render_fps > 0
     assert frames.shape == (1, 48, 64, 3) and frames.dtype == np.uint8

@@ -17,10 +17,10 @@ def test_rewards_match_definitions(address: str, num_envs: int) -> None:
     rng = np.random.default_rng(3)
     actions = rng.uniform(-1, 1, (STEPS, num_envs, 21)).astype(np.float32)
     with RemoteVectorEnv(address, "humanoid-run", num_envs, seed=seed) as env:
-        assert env.spec.max_episode_steps == 1000
-        assert env.spec.observation_space.shape == (67,)
-        assert env.spec.action_space.shape == (21,)
-        obs0 = env.reset()
+        assert env.session_spec.max_episode_steps == 1000
+        assert env.single_observation_space.shape == (67,)
+        assert env.single_action_space.shape == (21,)
+        obs0, _ = env.reset()
         got = [env.step(a) for a in actions]
     rewards = np.stack([g[1] for g in got])  # [T, B, 2]
     np.testing.assert_allclose(rewards[..., 1], -np.linalg.norm(actions, axis=-1), rtol=1e-6)

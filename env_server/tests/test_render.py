@@ -159,7 +159,7 @@ def test_frames_follow_the_simulation(address, env_id, action) -> None:
         first = env.render(width=64, height=48)
         np.testing.assert_array_equal(first, env.render(width=64, height=48))
         for _ in range(5):
-            env.step(np.full((1, *env.spec.action_space.shape), action, np.float32))
+            env.step(np.full((1, *env.session_spec.action_space.shape), action, np.float32))
         moved = env.render(width=64, height=48)
         np.testing.assert_array_equal(moved, env.render(width=64, height=48))
     assert np.abs(moved.astype(int) - first.astype(int)).mean() > 1.0

@@ -1,0 +1,178 @@
+"""The agent's trained policies in PyTorch: a checkpoint as a `torch.nn.Module`.
+
+    from env_server.trained_policy import load_policy
+
+    policy = load_policy("runs/pendulum__mompo__0__1700000000")  # its latest checkpoint
+    action = policy.act(obs)  # the env action, deterministic: the mean / the most likely
+
+A checkpoint is a directory the agent writes (agent/src/checkpoint.rs): `state.json`
+carries the network config and the dimensions the learner was built for, and
+`params.safetensors` the online policy's parameters under `policy/<VarStore name>`
+(the target networks, critics and duals there are ignored). A run directory means its
+latest checkpoint (`checkpoints/latest.json`). Needs torch and safetensors.
+
+The networks are transcribed from agent/src/nets (mlp.rs, policy.rs, torso.rs):
+- torso: Linear -> LayerNorm (eps 1e-5) -> tanh, then Linear -> ELU per further size of
+  `network.policy_layers` (parameters `torso.linear_0`, `torso.layer_norm`,
+  `torso.linear_<i>`);
+- Gaussian head (continuous actions, D dims): Linear to [mean_raw, std_raw];
+  mean = tanh(mean_raw) when `network.tanh_on_action_mean`, std = softplus(std_raw) +
+  sqrt(`network.min_variance`);
+- categorical head (A discrete actions): Linear to the logits.
+
+`act` returns what the agent's actor sends the env: a Gaussian action clipped to
+[-1, 1] and mapped linearly onto the action space's bounds where both are finite
+(`ActionBounds::to_env`), or an action index (add the space's `start` where it is not 0).
+Observations are flat float vectors [obs_dim] or [B, obs_dim], leaves in the order of
+the checkpoint's `dims.obs_leaves`. The mocap architecture (A.3) is not transcribed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from typing import Any
+
+import torch
+from safetensors.torch import load_file
+from torch import nn
+
+FORMAT_VERSION = 1  # agent/src/checkpoint.rs FORMAT_VERSION
+PREFIX = "policy/policy."  # the checkpoint's "policy/" and the VarStore's root "policy"
+
+
+class Torso(nn.Module):
+    """Linear -> LayerNorm -> tanh, then Linear -> ELU per further hidden size."""
+
+    def __init__(self, obs_dim: int, layers: list[int]) -> None:
+        super().__init__()
+        self.linear_0 = nn.Linear(obs_dim, layers[0])
+        self.layer_norm = nn.LayerNorm(layers[0], eps=1e-5)
+        self.hidden = [f"linear_{i}" for i in range(1, len(layers))]
+        for name, (inputs, outputs) in zip(self.hidden, zip(layers, layers[1:])):
+            self.add_module(name, nn.Linear(inputs, outputs))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """[B, obs_dim] -> [B, layers[-1]]."""
+        h = torch.tanh(self.layer_norm(self.linear_0(obs)))
+        for name in self.hidden:
+            h = nn.functional.elu(getattr(self, name)(h))
+        return h
+
+
+class GaussianPolicy(nn.Module):
+    """A diagonal Gaussian over D action dims; `forward` gives its mean and std [B, D]."""
+
+    def __init__(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
+        super().__init__()
+        layers = network["policy_layers"]
+        self.action_dim = dims["action"]["continuous"]["dim"]
+        self.torso = Torso(dims["obs_dim"], layers)
+        self.head = nn.Linear(layers[-1], 2 * self.action_dim)
+        self.tanh_mean = bool(network["tanh_on_action_mean"])
+        self.min_std = math.sqrt(network["min_variance"])
+        low, high = _bounds(dims.get("action_bounds"), self.action_dim)
+        finite = torch.isfinite(low) & torch.isfinite(high)
+        self.register_buffer("action_center", torch.where(finite, (low + high) / 2, 0.0), persistent=False)
+        self.register_buffer("action_scale", torch.where(finite, (high - low) / 2, 1.0), persistent=False)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean_raw, std_raw = self.head(self.torso(obs)).split(self.action_dim, dim=-1)
+        mean = torch.tanh(mean_raw) if self.tanh_mean else mean_raw
+        return mean, nn.functional.softplus(std_raw) + self.min_std
+
+    @torch.no_grad()
+    def act(self, obs: Any, deterministic: bool = True) -> torch.Tensor:
+        """The env action [D] or [B, D]: the mean (or a sample), clipped and scaled."""
+        x, batched = _obs(obs)
+        mean, std = self(x)
+        action = mean if deterministic else mean + std * torch.randn_like(mean)
+        env_action = action.clamp(-1.0, 1.0) * self.action_scale + self.action_center
+        return env_action if batched else env_action[0]
+
+
+class CategoricalPolicy(nn.Module):
+    """A categorical distribution over A actions; `forward` gives its logits [B, A]."""
+
+    def __init__(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
+        super().__init__()
+        layers = network["policy_layers"]
+        self.torso = Torso(dims["obs_dim"], layers)
+        self.head = nn.Linear(layers[-1], dims["action"]["discrete"]["n"])
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(self.torso(obs))
+
+    @torch.no_grad()
+    def act(self, obs: Any, deterministic: bool = True) -> torch.Tensor:
+        """The action index (int64), [] or [B]: the most likely, or a sample."""
+        x, batched = _obs(obs)
+        logits = self(x)
+        if deterministic:
+            action = logits.argmax(-1)
+        else:
+            action = torch.distributions.Categorical(logits=logits).sample()
+        return action if batched else action[0]
+
+
+def load_policy(path: str | pathlib.Path) -> GaussianPolicy | CategoricalPolicy:
+    """The online policy of a checkpoint directory, or of a run directory's latest one."""
+    path = pathlib.Path(path)
+    latest = path / "checkpoints" / "latest.json"
+    if latest.exists():
+        path = path / "checkpoints" / json.loads(latest.read_text())["checkpoint"]
+    state = json.loads((path / "state.json").read_text())
+    if state.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{path / 'state.json'}: format_version: expected {FORMAT_VERSION}, got {state.get('format_version')!r}"
+        )
+    network, dims = state["config"]["network"], state["dims"]
+    kind = network.get("architecture", {"kind": "mlp"})["kind"]
+    if kind != "mlp":
+        raise ValueError(
+            f"{path / 'state.json'}: config.network.architecture.kind: expected 'mlp' (the "
+            f"mocap torso is not transcribed), got {kind!r}"
+        )
+    action = dims["action"]
+    if "continuous" in action:
+        policy: GaussianPolicy | CategoricalPolicy = GaussianPolicy(network, dims)
+    elif "discrete" in action:
+        policy = CategoricalPolicy(network, dims)
+    else:
+        raise ValueError(f"{path / 'state.json'}: dims.action: expected continuous or discrete, got {action!r}")
+    params = load_file(path / "params.safetensors")
+    ours = {name[len(PREFIX) :]: t for name, t in params.items() if name.startswith(PREFIX)}
+    expected = policy.state_dict()
+    missing = sorted(set(expected) - set(ours))
+    unexpected = sorted(set(ours) - set(expected))
+    if missing or unexpected:
+        raise ValueError(
+            f"{path / 'params.safetensors'}: expected the tensors {PREFIX}<name> for {sorted(expected)}, "
+            f"missing {missing}, unexpected {unexpected}"
+        )
+    for name, tensor in ours.items():
+        if tensor.shape != expected[name].shape:
+            raise ValueError(
+                f"{path / 'params.safetensors'}: {PREFIX}{name}: expected shape "
+                f"{list(expected[name].shape)}, got {list(tensor.shape)}"
+            )
+    policy.load_state_dict(ours)
+    return policy.eval()
+
+
+def _bounds(bounds: dict[str, Any] | None, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """ActionBounds as tensors; serde_json writes an infinite bound as null. No bounds (a
+    checkpoint from before they were stored) means actions are clipped to [-1, 1]."""
+    if bounds is None:
+        return torch.full((dim,), -1.0), torch.full((dim,), 1.0)
+
+    def side(values: list[float | None], missing: float) -> torch.Tensor:
+        return torch.tensor([missing if v is None else v for v in values], dtype=torch.float32)
+
+    return side(bounds["low"], -math.inf), side(bounds["high"], math.inf)
+
+
+def _obs(obs: Any) -> tuple[torch.Tensor, bool]:
+    x = torch.as_tensor(obs, dtype=torch.float32)
+    return (x, True) if x.dim() == 2 else (x.unsqueeze(0), False)

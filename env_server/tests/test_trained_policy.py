@@ -1,0 +1,183 @@
+"""env_server.trained_policy against checkpoints written here the way the agent writes
+them (safetensors' numpy API, tensor names and state.json as agent/src/checkpoint.rs has
+them), checked against a numpy transcription of agent/src/nets and a hand-derived case.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+
+import numpy as np
+import pytest
+import torch
+from safetensors.numpy import save_file
+
+from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, load_policy
+
+
+def _network(layers: list[int], tanh_mean: bool = True, min_variance: float = 1e-4) -> dict:
+    return {
+        "policy_layers": layers,
+        "critic_layers": [8, 8],
+        "critic_shared_layers": 1,
+        "tanh_on_action_mean": tanh_mean,
+        "min_variance": min_variance,
+        "tanh_on_critic_action": True,
+        "architecture": {"kind": "mlp"},
+    }
+
+
+def _params(rng: np.random.Generator, obs_dim: int, layers: list[int], head: int) -> dict[str, np.ndarray]:
+    """The policy's VarStore variables, uniform like nn.Linear's init but wider, so the
+    activations leave their linear ranges."""
+    sizes = [obs_dim, *layers]
+    out = {}
+    for i, (inputs, outputs) in enumerate(zip(sizes, sizes[1:])):
+        out[f"torso.linear_{i}.weight"] = rng.uniform(-1, 1, (outputs, inputs))
+        out[f"torso.linear_{i}.bias"] = rng.uniform(-1, 1, outputs)
+    out["torso.layer_norm.weight"] = rng.uniform(0.5, 2, layers[0])
+    out["torso.layer_norm.bias"] = rng.uniform(-0.5, 0.5, layers[0])
+    out["head.weight"] = rng.uniform(-1, 1, (head, layers[-1]))
+    out["head.bias"] = rng.uniform(-1, 1, head)
+    return {k: v.astype(np.float32) for k, v in out.items()}
+
+
+def _write(directory: pathlib.Path, params: dict[str, np.ndarray], network: dict, dims: dict) -> pathlib.Path:
+    """A run directory with one checkpoint, as the learner saves it."""
+    ckpt = directory / "checkpoints" / "step_100"
+    ckpt.mkdir(parents=True)
+    tensors = {f"policy/policy.{k}": v for k, v in params.items()}
+    tensors |= {f"target_policy/policy.{k}": v + 1 for k, v in params.items()}  # must be ignored
+    tensors["critic/critic.torso.linear_0.weight"] = np.zeros((8, 3), np.float32)
+    tensors["duals/temperature"] = np.ones(2, np.float32)
+    save_file(tensors, ckpt / "params.safetensors")
+    state = {
+        "format_version": 1,
+        "step": 100,
+        "adam_steps": [100, 100, 100],
+        "temperature": [1.0, 1.0],
+        "alpha": [1.0, 1.0],
+        "config": {"network": network},
+        "dims": dims,
+    }
+    (ckpt / "state.json").write_text(json.dumps(state))
+    (directory / "checkpoints" / "latest.json").write_text(json.dumps({"checkpoint": "step_100"}))
+    return ckpt
+
+
+def _torso(p: dict[str, np.ndarray], x: np.ndarray, depth: int) -> np.ndarray:
+    """mlp.rs LayerNormMlp in float64 numpy."""
+    h = x @ p["torso.linear_0.weight"].T + p["torso.linear_0.bias"]
+    h = (h - h.mean(-1, keepdims=True)) / np.sqrt(h.var(-1, keepdims=True) + 1e-5)
+    h = np.tanh(h * p["torso.layer_norm.weight"] + p["torso.layer_norm.bias"])
+    for i in range(1, depth):
+        h = h @ p[f"torso.linear_{i}.weight"].T + p[f"torso.linear_{i}.bias"]
+        h = np.where(h > 0, h, np.expm1(h))
+    return h
+
+
+def test_gaussian_policy_matches_a_numpy_transcription(tmp_path: pathlib.Path) -> None:
+    rng = np.random.default_rng(0)
+    layers, obs_dim, d = [6, 5, 4], 3, 2
+    params = _params(rng, obs_dim, layers, 2 * d)
+    dims = {
+        "obs_dim": obs_dim,
+        "action": {"continuous": {"dim": d}},
+        "reward_names": ["task", "action_norm"],
+        "obs_leaves": [{"name": "", "dim": obs_dim}],
+        "action_bounds": {"low": [-2.0, None], "high": [2.0, None]},  # serde_json's infinity
+    }
+    _write(tmp_path, params, _network(layers), dims)
+    policy = load_policy(tmp_path)  # the run directory: its latest checkpoint
+    assert isinstance(policy, GaussianPolicy)
+
+    obs = rng.normal(0, 3, (7, obs_dim)).astype(np.float32)
+    out = _torso(params, obs.astype(np.float64), len(layers)) @ params["head.weight"].T + params["head.bias"]
+    mean = np.tanh(out[:, :d])
+    std = np.log1p(np.exp(out[:, d:])) + math.sqrt(1e-4)
+    got_mean, got_std = policy(torch.as_tensor(obs))
+    np.testing.assert_allclose(got_mean.detach().numpy(), mean, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(got_std.detach().numpy(), std, rtol=1e-5, atol=1e-6)
+    # The env action: dimension 0 scaled onto [-2, 2], the unbounded one clipped to [-1, 1].
+    expected = np.clip(mean, -1, 1) * [2.0, 1.0]
+    np.testing.assert_allclose(policy.act(obs).numpy(), expected, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(policy.act(obs[0]).numpy(), expected[0], rtol=1e-5, atol=1e-6)
+    torch.manual_seed(0)
+    sampled = policy.act(obs, deterministic=False).numpy()
+    assert sampled.shape == (7, d) and not np.allclose(sampled, expected)
+    assert np.all(np.abs(sampled) <= [2.0, 1.0])
+
+
+def test_gaussian_mean_without_tanh_and_bounds_from_before_they_were_stored(tmp_path: pathlib.Path) -> None:
+    rng = np.random.default_rng(1)
+    params = _params(rng, 4, [5], 2)
+    dims = {"obs_dim": 4, "action": {"continuous": {"dim": 1}}, "reward_names": ["r"]}
+    policy = load_policy(_write(tmp_path, params, _network([5], tanh_mean=False), dims))
+    obs = rng.normal(0, 1, (9, 4)).astype(np.float32)
+    raw = _torso(params, obs.astype(np.float64), 1) @ params["head.weight"].T + params["head.bias"]
+    np.testing.assert_allclose(policy(torch.as_tensor(obs))[0].detach().numpy(), raw[:, :1], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(policy.act(obs).numpy(), np.clip(raw[:, :1], -1, 1), rtol=1e-5, atol=1e-6)
+
+
+def test_categorical_policy_hand_derived(tmp_path: pathlib.Path) -> None:
+    """LayerNorm scale 0 makes the torso output tanh(LayerNorm bias) for every input:
+    tanh([0, 0.5]) = [0, 0.4621]; head rows [1, 0], [0, 1], [0, -1] with bias [0, 0, 0.3]
+    give the logits [0, 0.4621, -0.1621], so action 1, whatever the observation."""
+    params = {
+        "torso.linear_0.weight": np.ones((2, 3), np.float32),
+        "torso.linear_0.bias": np.zeros(2, np.float32),
+        "torso.layer_norm.weight": np.zeros(2, np.float32),
+        "torso.layer_norm.bias": np.array([0.0, 0.5], np.float32),
+        "head.weight": np.array([[1, 0], [0, 1], [0, -1]], np.float32),
+        "head.bias": np.array([0, 0, 0.3], np.float32),
+    }
+    dims = {"obs_dim": 3, "action": {"discrete": {"n": 3}}, "reward_names": ["time", "treasure"]}
+    policy = load_policy(_write(tmp_path, params, _network([2]), dims))
+    assert isinstance(policy, CategoricalPolicy)
+    obs = np.array([[0, 0, 0], [5, -3, 1]], np.float32)
+    np.testing.assert_allclose(policy(torch.as_tensor(obs)).detach().numpy(), [[0, 0.462117, -0.162117]] * 2, atol=1e-6)
+    assert policy.act(obs).tolist() == [1, 1] and policy.act(obs[0]).item() == 1
+    torch.manual_seed(0)
+    assert set(policy.act(np.zeros((200, 3)), deterministic=False).tolist()) == {0, 1, 2}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda p, n, s: p.pop("head.bias"), "missing ['head.bias'], unexpected []"),
+        (lambda p, n, s: p.update({"torso.linear_1.weight": p["head.weight"]}), "unexpected ['torso.linear_1.weight']"),
+        (
+            lambda p, n, s: p.update({"head.weight": p["head.weight"][:1]}),
+            "policy/policy.head.weight: expected shape [2, 5], got [1, 5]",
+        ),
+        (
+            lambda p, n, s: n.update({"architecture": {"kind": "mocap"}}),
+            "config.network.architecture.kind: expected 'mlp'",
+        ),
+        (
+            lambda p, n, s: s.update({"action": {"multi": {}}}),
+            "dims.action: expected continuous or discrete, got {'multi': {}}",
+        ),
+    ],
+)
+def test_a_checkpoint_that_does_not_fit_is_refused_by_name(tmp_path: pathlib.Path, change, message: str) -> None:
+    params = _params(np.random.default_rng(2), 4, [5], 2)
+    network = _network([5])
+    dims = {"obs_dim": 4, "action": {"continuous": {"dim": 1}}, "reward_names": ["r"]}
+    change(params, network, dims)
+    ckpt = _write(tmp_path, params, network, dims)
+    with pytest.raises(ValueError) as info:
+        load_policy(ckpt)
+    assert message in str(info.value)
+
+
+def test_a_checkpoint_of_another_format_is_refused(tmp_path: pathlib.Path) -> None:
+    dims = {"obs_dim": 4, "action": {"continuous": {"dim": 1}}, "reward_names": ["r"]}
+    ckpt = _write(tmp_path, _params(np.random.default_rng(3), 4, [5], 2), _network([5]), dims)
+    state = json.loads((ckpt / "state.json").read_text())
+    (ckpt / "state.json").write_text(json.dumps({**state, "format_version": 2}))
+    with pytest.raises(ValueError) as info:
+        load_policy(ckpt)
+    assert str(info.value) == f"{ckpt / 'state.json'}: format_version: expected 1, got 2"
