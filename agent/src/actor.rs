@@ -243,88 +243,94 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         },
         Err(e) => return Err(e),
     };
-    let map = ActionMap::new(&live.env.spec().action_space)?;
-    let mut acts = 0u64;
-    loop {
-        if params.has_changed().unwrap_or(false) {
-            let snapshot = params.borrow_and_update().clone();
-            policy
-                .load(&snapshot)
-                .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
-        }
-        let c = schedule.counters();
-        if c.stop || c.env_steps >= total_env_steps {
-            break;
-        }
-        let obs_t = Tensor::from_slice(&live.obs).view([b as i64, o as i64]);
-        let mut stream = sampling.at(acts);
-        acts += 1;
-        let out = policy.act(&obs_t, Acting::Sample(&mut stream));
-        let log_probs =
-            Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
-        let (env_action, replay_actions) = map.apply(&out.actions, b);
-        let step = match live.env.step(&env_action).await {
-            Ok(step) => step,
-            Err(e) if recoverable(&e) => match restart(&sessions, &mut on, &e).await? {
-                Some(restarted) => {
-                    live = restarted;
-                    continue;
+    // Every way out of the loop, an error included, closes the session: a server
+    // would otherwise hold it (and its simulators) until its lease runs out.
+    let result: Result<(), EnvError> = async {
+        let map = ActionMap::new(&live.env.spec().action_space)?;
+        let mut acts = 0u64;
+        loop {
+            if params.has_changed().unwrap_or(false) {
+                let snapshot = params.borrow_and_update().clone();
+                policy
+                    .load(&snapshot)
+                    .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+            }
+            let c = schedule.counters();
+            if c.stop || c.env_steps >= total_env_steps {
+                break;
+            }
+            let obs_t = Tensor::from_slice(&live.obs).view([b as i64, o as i64]);
+            let mut stream = sampling.at(acts);
+            acts += 1;
+            let out = policy.act(&obs_t, Acting::Sample(&mut stream));
+            let log_probs =
+                Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
+            let (env_action, replay_actions) = map.apply(&out.actions, b);
+            let step = match live.env.step(&env_action).await {
+                Ok(step) => step,
+                Err(e) if recoverable(&e) => match restart(&sessions, &mut on, &e).await? {
+                    Some(restarted) => {
+                        live = restarted;
+                        continue;
+                    }
+                    None => break,
+                },
+                Err(e) => return Err(e),
+            };
+            let next = step.observation.to_flat_f32();
+            let finals = step.final_observation.to_flat_f32();
+            let width = replay_actions.len() / b;
+            let mut snippets = Vec::new();
+            for i in 0..b {
+                let ended_at = step.episodes.iter().position(|e| e.env_index == i);
+                let next_obs = match ended_at {
+                    Some(j) if !finals.is_empty() => &finals[j * o..(j + 1) * o],
+                    _ => &next[i * o..(i + 1) * o],
+                };
+                let adder_step = AdderStep {
+                    action: &replay_actions[i * width..(i + 1) * width],
+                    reward: &step.reward[i * k..(i + 1) * k],
+                    next_observation: next_obs,
+                    terminated: step.terminated[i],
+                    truncated: step.truncated[i],
+                    log_prob: log_probs[i],
+                };
+                snippets.extend(live.adders[i].add(adder_step));
+                if ended_at.is_some() {
+                    live.adders[i].observe_first(&next[i * o..(i + 1) * o]);
                 }
-                None => break,
-            },
-            Err(e) => return Err(e),
-        };
-        let next = step.observation.to_flat_f32();
-        let finals = step.final_observation.to_flat_f32();
-        let width = replay_actions.len() / b;
-        let mut snippets = Vec::new();
-        for i in 0..b {
-            let ended_at = step.episodes.iter().position(|e| e.env_index == i);
-            let next_obs = match ended_at {
-                Some(j) if !finals.is_empty() => &finals[j * o..(j + 1) * o],
-                _ => &next[i * o..(i + 1) * o],
-            };
-            let adder_step = AdderStep {
-                action: &replay_actions[i * width..(i + 1) * width],
-                reward: &step.reward[i * k..(i + 1) * k],
-                next_observation: next_obs,
-                terminated: step.terminated[i],
-                truncated: step.truncated[i],
-                log_prob: log_probs[i],
-            };
-            snippets.extend(live.adders[i].add(adder_step));
-            if ended_at.is_some() {
-                live.adders[i].observe_first(&next[i * o..(i + 1) * o]);
             }
-        }
-        live.obs = next;
-        {
-            let mut replay = schedule.replay.lock().unwrap_or_else(|e| e.into_inner());
-            for s in snippets {
-                replay
-                    .insert(s)
-                    .map_err(|e| EnvError::Process(e.to_string()))?;
+            live.obs = next;
+            {
+                let mut replay = schedule.replay.lock().unwrap_or_else(|e| e.into_inner());
+                for s in snippets {
+                    replay
+                        .insert(s)
+                        .map_err(|e| EnvError::Process(e.to_string()))?;
+                }
             }
+            let env_steps = schedule.counters().env_steps + b as u64;
+            for episode in &step.episodes {
+                let record = EpisodeRecord {
+                    env_steps,
+                    actor: id,
+                    episode: episode.clone(),
+                    wall_seconds: schedule.elapsed_seconds(),
+                };
+                files
+                    .episode(&record)
+                    .map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
+            }
+            schedule.add_env_steps(
+                b as u64,
+                step.episodes.into_iter().map(|e| e.episode_return),
+            );
+            schedule.wait_for_learner().await;
         }
-        let env_steps = schedule.counters().env_steps + b as u64;
-        for episode in &step.episodes {
-            let record = EpisodeRecord {
-                env_steps,
-                actor: id,
-                episode: episode.clone(),
-                wall_seconds: schedule.elapsed_seconds(),
-            };
-            files
-                .episode(&record)
-                .map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
-        }
-        schedule.add_env_steps(
-            b as u64,
-            step.episodes.into_iter().map(|e| e.episode_return),
-        );
-        schedule.wait_for_learner().await;
+        Ok(())
     }
+    .await;
     // The session may already be gone if the server went away at the very end.
     let _ = live.env.close().await;
-    Ok(())
+    result
 }

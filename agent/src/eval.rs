@@ -91,23 +91,36 @@ pub async fn evaluate_observed<O: EvalObserver>(
         .make(&make_options(cfg, num_envs, cfg.seed + 1_000_000))
         .await?;
     env.use_stream();
-    let map = ActionMap::new(&env.spec().action_space)?;
-    let o = env.spec().observation_space.flat_dim();
-    let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
-    observer.on_reset(&env).await?;
-    let mut done = Vec::new();
-    while done.len() < episodes {
-        let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
-        let out = policy.act(&obs_t, Acting::Deterministic);
-        let (action, _) = map.apply(&out.actions, num_envs);
-        let step = env.step(&action).await?;
-        observer.on_step(&env, &step).await?;
-        done.extend(step.episodes);
-        obs = step.observation.to_flat_f32();
+    // `move` takes the policy into the future (a borrowed libtorch module would make
+    // it unsendable) and `env` by mutable reference, so that it can be closed below.
+    let env_in = &mut env;
+    let result: Result<Vec<EpisodeSummary>, O::Error> = async move {
+        let env = env_in;
+        let map = ActionMap::new(&env.spec().action_space)?;
+        let o = env.spec().observation_space.flat_dim();
+        let mut obs = env.reset(&[], &[]).await?.observation.to_flat_f32();
+        observer.on_reset(env).await?;
+        let mut done = Vec::new();
+        while done.len() < episodes {
+            let obs_t = Tensor::from_slice(&obs).view([num_envs as i64, o as i64]);
+            let out = policy.act(&obs_t, Acting::Deterministic);
+            let (action, _) = map.apply(&out.actions, num_envs);
+            let step = env.step(&action).await?;
+            observer.on_step(env, &step).await?;
+            done.extend(step.episodes);
+            obs = step.observation.to_flat_f32();
+        }
+        done.truncate(episodes);
+        Ok(done)
     }
-    done.truncate(episodes);
-    env.close().await?;
-    Ok(done)
+    .await;
+    // Closed on every way out, so a failed evaluation leaves no session behind; an
+    // error of the evaluation itself is the one reported.
+    match (result, env.close().await) {
+        (Ok(done), Ok(())) => Ok(done),
+        (Ok(_), Err(e)) => Err(e.into()),
+        (Err(e), _) => Err(e),
+    }
 }
 
 /// What `agent eval` reports.

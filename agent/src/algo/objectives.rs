@@ -92,6 +92,7 @@ fn check_names(what: &str, given: &[&str], env: &[String]) -> Result<(), ConfigE
     Err(ConfigError::ObjectiveNames {
         what: what.into(),
         env: env.to_vec(),
+        given: given.iter().map(|g| g.to_string()).collect(),
         missing,
         extra,
         duplicate,
@@ -113,7 +114,7 @@ pub fn bind_names(
     env: &[String],
 ) -> Result<BoundObjectives, ConfigError> {
     let given: Vec<&str> = objectives.iter().map(|o| o.name.as_str()).collect();
-    check_names("objectives", &given, env)?;
+    check_names("learner.objectives", &given, env)?;
     let mut bound = BoundObjectives {
         objectives: Vec::new(),
         critic_names: Vec::new(),
@@ -151,7 +152,7 @@ pub fn bind_scalarized(
     env: &[String],
 ) -> Result<BoundObjectives, ConfigError> {
     let given: Vec<&str> = weights.iter().map(|w| w.name.as_str()).collect();
-    check_names("algorithm.weights", &given, env)?;
+    check_names("learner.algorithm.weights", &given, env)?;
     let critic_reward_weights = env
         .iter()
         .map(|name| {
@@ -296,9 +297,20 @@ mod tests {
             obj("pain", 0.1, ObjectiveSource::Learned),
         ];
         let msg = bind_names(&cfg, &env()).unwrap_err().to_string();
-        assert!(msg.contains(r#"missing ["action_norm"]"#), "{msg}");
-        assert!(msg.contains(r#"extra ["pain"]"#), "{msg}");
-        assert!(msg.contains(r#"duplicate ["task"]"#), "{msg}");
+        assert_eq!(
+            msg,
+            r#"learner.objectives must name each of the env's objectives ["task", "action_norm"] once, got ["task", "task", "pain"]: missing ["action_norm"]; not objectives of this env ["pain"]; named more than once ["task"]"#
+        );
+        // Only the kinds of problem that occur are named (no empty lists).
+        let cfg = [
+            obj("task", 0.1, ObjectiveSource::Learned),
+            obj("energy", 0.1, ObjectiveSource::Learned),
+        ];
+        let msg = bind_names(&cfg, &env()).unwrap_err().to_string();
+        assert_eq!(
+            msg,
+            r#"learner.objectives must name each of the env's objectives ["task", "action_norm"] once, got ["task", "energy"]: missing ["action_norm"]; not objectives of this env ["energy"]"#
+        );
     }
 
     #[test]

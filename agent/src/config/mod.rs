@@ -157,6 +157,20 @@ impl Default for LearnerConfig {
     }
 }
 
+/// What is wrong with a list of objective names, naming only the kinds that occur.
+fn name_problems(missing: &[String], extra: &[String], duplicate: &[String]) -> String {
+    [
+        ("missing", missing),
+        ("not objectives of this env", extra),
+        ("named more than once", duplicate),
+    ]
+    .iter()
+    .filter(|(_, names)| !names.is_empty())
+    .map(|(what, names)| format!("{what} {names:?}"))
+    .collect::<Vec<_>>()
+    .join("; ")
+}
+
 /// A configuration that cannot be used; the message quotes the received values.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConfigError {
@@ -172,13 +186,16 @@ pub enum ConfigError {
     },
     /// Config names and env objective names do not match one to one.
     #[error(
-        "{what} do not match the env objectives {env:?}: missing {missing:?}, extra {extra:?}, duplicate {duplicate:?}"
+        "{what} must name each of the env's objectives {env:?} once, got {given:?}: {}",
+        name_problems(.missing, .extra, .duplicate)
     )]
     ObjectiveNames {
-        /// `objectives` or `algorithm.weights`.
+        /// The config field: `learner.objectives` or `learner.algorithm.weights`.
         what: String,
         /// The env's objective names in reward-column order.
         env: Vec<String>,
+        /// The names the config gave, in its order.
+        given: Vec<String>,
         /// Env objectives the config does not mention.
         missing: Vec<String>,
         /// Config names the env does not have.

@@ -4,6 +4,7 @@
 //! binds 127.0.0.1 (or another loopback address) on an OS-chosen port and announces it with one stdout line,
 //! `LISTENING <host>:<port>`, which is read here.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
@@ -25,6 +26,9 @@ pub struct ServerOptions {
     pub port: u16,
     /// Extra command-line flags, e.g. `["--max-sessions", "4"]`.
     pub extra_args: Vec<String>,
+    /// Environment variables set for the server on top of this process's, e.g.
+    /// `PYTHONPATH` naming a folder of plug-in packages.
+    pub environment: BTreeMap<String, String>,
     /// How long to wait for the LISTENING line.
     pub startup_timeout: Duration,
 }
@@ -36,6 +40,7 @@ impl Default for ServerOptions {
             host: "127.0.0.1".into(),
             port: 0,
             extra_args: Vec::new(),
+            environment: BTreeMap::new(),
             startup_timeout: Duration::from_secs(120),
         }
     }
@@ -76,6 +81,7 @@ impl LocalServer {
                 &options.port.to_string(),
             ])
             .args(&options.extra_args)
+            .envs(&options.environment)
             // A spawned server is a helper of this process: only its warnings and errors
             // reach the terminal (pass --log-level in extra_args to see more).
             .args(if options.extra_args.iter().any(|a| a == "--log-level") {
