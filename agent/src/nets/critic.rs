@@ -13,7 +13,9 @@
 //! C heads (learned objectives).
 
 use super::ActionKind;
-use super::mlp::{Dense, HeadStack, Norm, elu_};
+use super::activation::elu_;
+use super::heads::HeadStack;
+use super::mlp::{Dense, Norm};
 use crate::config::NetworkConfig;
 use tch::{Kind, Tensor, nn};
 

@@ -1,94 +1,169 @@
-//! The shared torso of every network: Linear -> LayerNorm -> tanh, then Linear -> ELU
-//! per further hidden layer (Table 2 "layer norm on first layer", "tanh on output of
-//! layer norm", "activation ELU").
+//! The layers every network is built from: Linear -> LayerNorm -> tanh, then Linear
+//! -> ELU per further hidden layer (Table 2 "layer norm on first layer", "tanh on
+//! output of layer norm", "activation ELU"). The critics' heads are in `heads.rs`.
 //!
 //! Weights use PyTorch's `nn.Linear` initialisation, uniform(-1/sqrt(fan_in), 1/sqrt(fan_in))
 //! for weight and bias, so the PyTorch reference in `benches/` builds the same networks.
 //!
-//! The activations run in place. Where no gradient is tracked (target networks, actors)
-//! they are computed from cheaper kernels: libtorch 2.13's AVX-512 CPU kernels for ELU
-//! (via expm1) and tanh take 6.7 and 3 ns per element on the development machine, exp
-//! and sigmoid 1 and 0.6, and the target critic's M samples per state make these
-//! activations a third of a learner step. The identities used are exact;
-//! only the rounding differs (by at most a few 1e-7).
+//! Population training (DESIGN.md "Populations") gives every layer a member axis:
+//! P members' parameters stacked along a leading axis, so that one batched matmul
+//! runs a layer of all P networks. `forward_members` takes and returns member-first
+//! tensors `[P, R, ..]`. A layer of one member keeps today's unstacked shapes and
+//! names (checkpoints, snapshots and the Python loader read them) and runs the same
+//! kernels as `forward`, so a population of one computes a single network's numbers
+//! bit for bit.
+//!
+//! Shape legend: P members, R rows (states or state-action pairs).
 
+use super::activation::{elu_, tanh_};
 use tch::{Tensor, nn};
 
-/// A dense layer `y = x W^T + b` with weight `[out, in]`.
+/// How many members' parameters a layer holds: one with today's shapes, or P >= 2
+/// stacked along a leading member axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Members(i64);
+
+impl Members {
+    /// One member: unstacked parameters.
+    pub const ONE: Members = Members(1);
+
+    /// `count` members; `None` for fewer than one.
+    pub fn new(count: i64) -> Option<Self> {
+        (count >= 1).then_some(Members(count))
+    }
+
+    /// P.
+    pub fn count(self) -> i64 {
+        self.0
+    }
+
+    pub(crate) fn stacked(self) -> bool {
+        self.0 > 1
+    }
+
+    /// A parameter's shape: `dims`, behind the member axis when stacked.
+    pub(crate) fn shape(self, dims: &[i64]) -> Vec<i64> {
+        if self.stacked() {
+            [&[self.0][..], dims].concat()
+        } else {
+            dims.to_vec()
+        }
+    }
+}
+
+/// A dense layer `y = x W^T + b` with weight `[out, in]` (`[P, out, in]` stacked).
 #[derive(Debug)]
 pub struct Dense {
-    /// Weight `[out, in]`.
+    /// Weight `[out, in]`, or `[P, out, in]`.
     pub weight: Tensor,
-    /// Bias `[out]`, absent for the action half of a split first layer.
+    /// Bias `[out]` (`[P, out]`), absent for the action half of a split first layer.
     pub bias: Option<Tensor>,
+    members: Members,
 }
 
 impl Dense {
     /// Creates `weight` (and `bias`) under `p`, initialised with bound 1/sqrt(fan_in).
     /// `fan_in` may exceed `input` when this layer is part of a split layer.
     pub fn new(p: &nn::Path, input: i64, output: i64, fan_in: i64, bias: bool) -> Self {
+        Self::with_members(p, input, output, fan_in, bias, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        input: i64,
+        output: i64,
+        fan_in: i64,
+        bias: bool,
+        members: Members,
+    ) -> Self {
         let bound = 1.0 / (fan_in as f64).sqrt();
         let init = nn::Init::Uniform {
             lo: -bound,
             up: bound,
         };
-        let weight = p.var("weight", &[output, input], init);
-        let bias = bias.then(|| p.var("bias", &[output], init));
-        Self { weight, bias }
+        let weight = p.var("weight", &members.shape(&[output, input]), init);
+        let bias = bias.then(|| p.var("bias", &members.shape(&[output]), init));
+        Self {
+            weight,
+            bias,
+            members,
+        }
     }
 
     /// # Shapes
-    /// `[.., in] -> [.., out]`.
+    /// `[.., in] -> [.., out]` (one member).
     pub fn forward(&self, x: &Tensor) -> Tensor {
         x.linear(&self.weight, self.bias.as_ref())
     }
-}
 
-/// ELU in place. Untracked: `elu(x) = max(x, exp(min(x, 0)) - 1)` (for x <= 0,
-/// exp(x) - 1 >= x; for x > 0 the second term is 0 < x).
-pub(crate) fn elu_(x: &mut Tensor) {
-    if x.requires_grad() {
-        // ELU's backward uses its result, so in place is autograd-safe.
-        let _ = x.elu_();
-        return;
+    /// # Shapes
+    /// `[P, R, in] -> [P, R, out]`.
+    pub fn forward_members(&self, x: &Tensor) -> Tensor {
+        if !self.members.stacked() {
+            return self.forward(x);
+        }
+        let weight_t = self.weight.transpose(1, 2);
+        match &self.bias {
+            Some(b) => b.unsqueeze(1).baddbmm(x, &weight_t, 1.0, 1.0),
+            None => x.bmm(&weight_t),
+        }
     }
-    let mut negative_part = x.clamp_max(0.0);
-    let _ = negative_part.exp_();
-    let _ = negative_part.g_sub_scalar_(1.0);
-    let _ = x.maximum_out(x, &negative_part);
-}
-
-/// tanh in place. Untracked: `tanh(x) = 2 sigmoid(2x) - 1`.
-pub(crate) fn tanh_(x: &mut Tensor) {
-    if x.requires_grad() {
-        // tanh's backward uses its result, so in place is autograd-safe.
-        let _ = x.tanh_();
-        return;
-    }
-    let _ = x.g_mul_scalar_(2.0);
-    let _ = x.sigmoid_();
-    let _ = x.g_mul_scalar_(2.0);
-    let _ = x.g_sub_scalar_(1.0);
 }
 
 /// LayerNorm with learned scale and shift over the last dimension (eps 1e-5).
 #[derive(Debug)]
 pub struct Norm {
-    inner: nn::LayerNorm,
+    weight: Tensor,
+    bias: Tensor,
+    dim: i64,
+    members: Members,
 }
+
+const LAYER_NORM_EPS: f64 = 1e-5;
 
 impl Norm {
     /// Creates `weight` (ones) and `bias` (zeros) of width `dim` under `p`.
     pub fn new(p: &nn::Path, dim: i64) -> Self {
+        Self::with_members(p, dim, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(p: &nn::Path, dim: i64, members: Members) -> Self {
         Self {
-            inner: nn::layer_norm(p, vec![dim], Default::default()),
+            weight: p.var("weight", &members.shape(&[dim]), nn::Init::Const(1.0)),
+            bias: p.var("bias", &members.shape(&[dim]), nn::Init::Const(0.0)),
+            dim,
+            members,
         }
     }
 
-    /// LayerNorm then tanh. # Shapes `[.., dim] -> [.., dim]`.
+    /// LayerNorm then tanh. # Shapes `[.., dim] -> [.., dim]` (one member).
     pub fn forward_tanh(&self, x: &Tensor) -> Tensor {
         // In place: LayerNorm's backward needs its input, not its output.
-        let mut y = nn::Module::forward(&self.inner, x);
+        let mut y = x.layer_norm(
+            [self.dim],
+            Some(&self.weight),
+            Some(&self.bias),
+            LAYER_NORM_EPS,
+            true,
+        );
+        tanh_(&mut y);
+        y
+    }
+
+    /// # Shapes
+    /// `[P, R, dim] -> [P, R, dim]`.
+    pub fn forward_tanh_members(&self, x: &Tensor) -> Tensor {
+        if !self.members.stacked() {
+            return self.forward_tanh(x);
+        }
+        // libtorch's fused affine takes one [dim] scale; members scale separately.
+        let normed = x.layer_norm([self.dim], None::<Tensor>, None, LAYER_NORM_EPS, true);
+        let mut y = self
+            .bias
+            .unsqueeze(1)
+            .addcmul(&normed, &self.weight.unsqueeze(1));
         tanh_(&mut y);
         y
     }
@@ -106,12 +181,20 @@ pub struct LayerNormMlp {
 impl LayerNormMlp {
     /// `layers` are the hidden sizes (non-empty); parameters live under `p`.
     pub fn new(p: &nn::Path, input: i64, layers: &[i64]) -> Self {
-        let first = Dense::new(&(p / "linear_0"), input, layers[0], input, true);
-        let norm = Norm::new(&(p / "layer_norm"), layers[0]);
+        Self::with_members(p, input, layers, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(p: &nn::Path, input: i64, layers: &[i64], members: Members) -> Self {
+        let first = Dense::with_members(&(p / "linear_0"), input, layers[0], input, true, members);
+        let norm = Norm::with_members(&(p / "layer_norm"), layers[0], members);
         let hidden = layers
             .windows(2)
             .enumerate()
-            .map(|(i, w)| Dense::new(&(p / format!("linear_{}", i + 1)), w[0], w[1], w[0], true))
+            .map(|(i, w)| {
+                let path = p / format!("linear_{}", i + 1);
+                Dense::with_members(&path, w[0], w[1], w[0], true, members)
+            })
             .collect();
         Self {
             first,
@@ -127,7 +210,7 @@ impl LayerNormMlp {
     }
 
     /// # Shapes
-    /// `[.., input] -> [.., layers.last()]`.
+    /// `[.., input] -> [.., layers.last()]` (one member).
     pub fn forward(&self, x: &Tensor) -> Tensor {
         let mut h = self.norm.forward_tanh(&self.first.forward(x));
         for layer in &self.hidden {
@@ -137,92 +220,135 @@ impl LayerNormMlp {
         }
         h
     }
-}
-
-/// One layer of C independent heads at once: weight `[C, in, out]`, bias `[C, 1, out]`.
-#[derive(Debug)]
-struct StackedDense {
-    weight: Tensor,
-    bias: Tensor,
-}
-
-impl StackedDense {
-    fn new(p: &nn::Path, heads: i64, input: i64, output: i64) -> Self {
-        let bound = 1.0 / (input as f64).sqrt();
-        let init = nn::Init::Uniform {
-            lo: -bound,
-            up: bound,
-        };
-        Self {
-            weight: p.var("weight", &[heads, input, output], init),
-            bias: p.var("bias", &[heads, 1, output], init),
-        }
-    }
-
-    /// `[C or 1, P, in] -> [C, P, out]`.
-    fn forward(&self, x: &Tensor) -> Tensor {
-        // The bias is added in place: the product is a fresh tensor, and an add's
-        // backward needs neither operand.
-        let mut y = x.matmul(&self.weight);
-        let _ = y.g_add_(&self.bias);
-        y
-    }
-}
-
-/// C per-objective heads, each Linear -> ELU per hidden size and a final Linear to one
-/// value, run as one batched matmul per layer (so all objectives cost one pass).
-#[derive(Debug)]
-pub struct HeadStack {
-    layers: Vec<StackedDense>,
-}
-
-impl HeadStack {
-    /// `sizes[0]` is the input width, the rest the hidden sizes; parameters under
-    /// `p/linear_i`.
-    pub fn new(p: &nn::Path, heads: i64, sizes: &[i64]) -> Self {
-        let mut sizes = sizes.to_vec();
-        sizes.push(1);
-        let layers = sizes
-            .windows(2)
-            .enumerate()
-            .map(|(i, w)| StackedDense::new(&(p / format!("linear_{i}")), heads, w[0], w[1]))
-            .collect();
-        Self { layers }
-    }
 
     /// # Shapes
-    /// `[P, in] -> [P, C]`.
-    pub fn forward(&self, h: &Tensor) -> Tensor {
-        let mut x = h.unsqueeze(0);
-        let last = self.layers.len() - 1;
-        for (i, layer) in self.layers.iter().enumerate() {
-            x = layer.forward(&x);
-            if i < last {
-                // In place: Linear's backward does not need its output.
-                elu_(&mut x);
-            }
+    /// `[P, R, input] -> [P, R, layers.last()]`.
+    pub fn forward_members(&self, x: &Tensor) -> Tensor {
+        let mut h = self
+            .norm
+            .forward_tanh_members(&self.first.forward_members(x));
+        for layer in &self.hidden {
+            h = layer.forward_members(&h);
+            elu_(&mut h);
         }
-        x.squeeze_dim(-1).transpose(0, 1)
+        h
     }
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::heads::HeadStack;
     use super::*;
     use tch::{Device, Kind};
 
-    #[test]
-    fn untracked_activations_match_libtorch() {
-        let x = Tensor::linspace(-12.0, 12.0, 4801, (Kind::Float, Device::Cpu));
-        for (name, fast, reference) in [
-            ("elu", elu_ as fn(&mut Tensor), x.elu()),
-            ("tanh", tanh_ as fn(&mut Tensor), x.tanh()),
-        ] {
-            let mut y = x.copy();
-            fast(&mut y);
-            let err = (&y - &reference).abs().max().double_value(&[]);
-            assert!(err < 5e-7, "{name}: max error {err}");
+    const P: i64 = 3;
+
+    fn randn(shape: &[i64]) -> Tensor {
+        Tensor::randn(shape, (Kind::Float, Device::Cpu))
+    }
+
+    /// Member `p` of every stacked variable of `population`, copied from `single`'s
+    /// variable of the same name.
+    fn load_member(population: &nn::VarStore, p: i64, single: &nn::VarStore) {
+        let stacked = population.variables();
+        for (name, value) in single.variables() {
+            tch::no_grad(|| stacked[&name].get(p).copy_(&value));
         }
+    }
+
+    /// A network type as the member tests drive it.
+    trait Net {
+        fn build(p: &nn::Path, members: Members) -> Self;
+        fn forward(&self, x: &Tensor) -> Tensor;
+        fn forward_members(&self, x: &Tensor) -> Tensor;
+    }
+
+    impl Net for LayerNormMlp {
+        fn build(p: &nn::Path, members: Members) -> Self {
+            LayerNormMlp::with_members(p, 5, &[8, 6], members)
+        }
+        fn forward(&self, x: &Tensor) -> Tensor {
+            LayerNormMlp::forward(self, x)
+        }
+        fn forward_members(&self, x: &Tensor) -> Tensor {
+            LayerNormMlp::forward_members(self, x)
+        }
+    }
+
+    impl Net for HeadStack {
+        fn build(p: &nn::Path, members: Members) -> Self {
+            HeadStack::with_members(p, 2, &[5, 6], members)
+        }
+        fn forward(&self, x: &Tensor) -> Tensor {
+            HeadStack::forward(self, x)
+        }
+        fn forward_members(&self, x: &Tensor) -> Tensor {
+            HeadStack::forward_members(self, x)
+        }
+    }
+
+    /// A population of one runs the single network's kernels on the same shapes.
+    fn one_member_is_bit_for_bit<N: Net>() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = N::build(&vs.root(), Members::ONE);
+        let x = randn(&[7, 5]);
+        let single = net.forward(&x);
+        assert!(
+            net.forward_members(&x.unsqueeze(0))
+                .squeeze_dim(0)
+                .equal(&single)
+        );
+    }
+
+    /// Member p of a stacked network computes what a single network with p's
+    /// parameters computes, and gets exactly that network's gradient from the
+    /// members' summed loss.
+    fn stacked_members_are_their_single_networks<N: Net>() {
+        let singles: Vec<(nn::VarStore, N)> = (0..P)
+            .map(|_| {
+                let vs = nn::VarStore::new(Device::Cpu);
+                let net = N::build(&vs.root(), Members::ONE);
+                (vs, net)
+            })
+            .collect();
+        let population_vs = nn::VarStore::new(Device::Cpu);
+        let population = N::build(&population_vs.root(), Members::new(P).unwrap());
+        for (p, (vs, _)) in singles.iter().enumerate() {
+            load_member(&population_vs, p as i64, vs);
+        }
+        let x = randn(&[P, 7, 5]);
+        let out = population.forward_members(&x);
+        out.square().sum(Kind::Float).backward();
+        let stacked = population_vs.variables();
+        for (p, (vs, net)) in singles.iter().enumerate() {
+            let single = net.forward(&x.get(p as i64));
+            // Batched and single GEMMs may round differently; a wrong member or a
+            // missing bias would be off by O(1).
+            assert!(
+                out.get(p as i64).allclose(&single, 1e-6, 1e-6, false),
+                "member {p}: outputs differ"
+            );
+            single.square().sum(Kind::Float).backward();
+            for (name, var) in vs.variables() {
+                let grad = stacked[&name].grad().get(p as i64);
+                assert!(
+                    grad.allclose(&var.grad(), 1e-5, 1e-6, false),
+                    "member {p}, {name}: gradients differ"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_population_of_one_is_the_single_network_bit_for_bit() {
+        one_member_is_bit_for_bit::<LayerNormMlp>();
+        one_member_is_bit_for_bit::<HeadStack>();
+    }
+
+    #[test]
+    fn each_stacked_member_is_its_own_single_network() {
+        stacked_members_are_their_single_networks::<LayerNormMlp>();
+        stacked_members_are_their_single_networks::<HeadStack>();
     }
 
     #[test]

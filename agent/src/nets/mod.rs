@@ -4,8 +4,10 @@
 //! other hidden layers. Shape legend: B batch (states), M sampled actions per state,
 //! D action dims, A discrete actions, C learned critics (heads).
 
+pub mod activation;
 pub mod critic;
 pub mod dims;
+pub mod heads;
 pub mod mlp;
 pub mod policy;
 pub mod snapshot;
@@ -14,6 +16,7 @@ pub mod value;
 
 pub use critic::MultiCritic;
 pub use dims::{ActionBounds, LearnerDims, ObsLeaf, ObsSplit};
+pub use mlp::Members;
 pub use policy::{
     ActOutput, Acting, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
 };

@@ -8,7 +8,8 @@
 //!
 //! Shape legend: N states, O observation size, C heads.
 
-use super::mlp::{HeadStack, LayerNormMlp};
+use super::heads::HeadStack;
+use super::mlp::LayerNormMlp;
 use crate::config::NetworkConfig;
 use tch::{Tensor, nn};
 
