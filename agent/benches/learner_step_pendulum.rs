@@ -4,7 +4,7 @@
 //! learned and `action_norm` in closed form. The size is fixed here, not read from
 //! the preset, so that a smaller preset cannot stand in for a faster step.
 //!
-//! Run: `cargo bench -p agent --bench learner_step_pendulum [-- --threads 1]`
+//! Run: `cargo bench -p agent --bench learner_step_pendulum [-- --threads 1 --batch 128]`
 //! (prints its figure last).
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
@@ -22,7 +22,8 @@ fn main() {
         },
         ..LearnerConfig::default()
     };
-    cfg.mpo.batch_size = 128;
+    // `--batch 2` leaves the step's fixed cost (dispatch, autograd, Adam, syncs) alone.
+    cfg.mpo.batch_size = common::arg("--batch", 128);
     common::run(common::StepSize {
         name: "learner_step_pendulum",
         obs_dim: 3,
