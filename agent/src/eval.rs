@@ -9,6 +9,7 @@ use tch::{Device, Tensor};
 
 use crate::actor::ActionMap;
 use crate::algo::Learner;
+use crate::config::ConfigError;
 use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::{EnvClient, RemoteEnv};
 use crate::env::pool::ServerPool;
@@ -163,7 +164,21 @@ pub async fn evaluate_checkpoint(
             .unwrap_or_default();
         (run_dir, path.to_path_buf())
     };
-    let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
+    // A checkpoint folder outside a run folder has no config beside it: say so,
+    // rather than read whatever config.toml the working directory holds.
+    let config = run_dir.join("config.toml");
+    if run_dir.as_os_str().is_empty() || !config.is_file() {
+        return Err(ConfigError::Invalid {
+            field: "--checkpoint".into(),
+            requirement: format!(
+                "a run folder, or a checkpoint in <run>/checkpoints/, whose run folder holds config.toml (looked for {})",
+                config.display()
+            ),
+            got: path.display().to_string(),
+        }
+        .into());
+    }
+    let cfg = TrainConfig::load(&config)?;
     let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
     let dims = learner.dims().clone();
     let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);

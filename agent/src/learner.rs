@@ -275,11 +275,11 @@ pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
                     learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,
                 };
                 previous = (wall_seconds, env_steps, n);
-                let path = files.dir().join("learner.jsonl");
                 // Every TensorBoard chart is by env step, as in SB3 and Acme.
                 files
                     .scalars(env_steps, &record.scalars(files.objectives()))
-                    .map_err(io_err(&path))?;
+                    .map_err(io_err(&files.events_path()))?;
+                let path = files.dir().join("learner.jsonl");
                 files.learner(&record).map_err(io_err(&path))?;
             }
             *latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);

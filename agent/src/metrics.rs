@@ -130,6 +130,15 @@ impl RunFiles {
             .restart(env_steps)
     }
 
+    /// The TensorBoard event file this process writes (errors name it).
+    pub fn events_path(&self) -> PathBuf {
+        self.events
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .path()
+            .to_path_buf()
+    }
+
     /// Write scalars to the TensorBoard file at `step` (flushed with the other files).
     pub fn scalars(&self, step: u64, scalars: &[Scalar]) -> std::io::Result<()> {
         self.events

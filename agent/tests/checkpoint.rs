@@ -139,3 +139,30 @@ fn movmpo_per_dimension_multipliers_round_trip() {
     step_alike(&mut learner, &mut restored, &batch, 5);
     assert_eq!(restored.alpha_by_part(), learner.alpha_by_part());
 }
+
+/// `agent eval --checkpoint` on a checkpoint outside a run folder names the config it
+/// looked for, instead of reading a `config.toml` from the working directory.
+#[tokio::test]
+async fn eval_of_a_checkpoint_without_its_run_config_names_the_missing_file() {
+    let dir = tempfile::tempdir().unwrap();
+    // <dir>/copied/checkpoints/step_3: the run folder would be <dir>/copied.
+    let ckpt = dir.path().join("copied/checkpoints/step_3");
+    continuous_learner().save_checkpoint(&ckpt).unwrap();
+    let err = agent::eval::evaluate_checkpoint(
+        &ckpt,
+        &["127.0.0.1:1".into()],
+        &agent::env::connection::ConnectionConfig::default(),
+        1,
+        None,
+    )
+    .await
+    .unwrap_err()
+    .to_string();
+    let wanted = dir.path().join("copied/config.toml");
+    assert!(
+        err.starts_with("--checkpoint must be")
+            && err.contains(&format!("looked for {}", wanted.display()))
+            && err.ends_with(&format!("got {}", ckpt.display())),
+        "{err}"
+    );
+}

@@ -37,6 +37,8 @@ use crate::run_config::TrainConfig;
 use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
 use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
+use futures::FutureExt;
+use std::panic::AssertUnwindSafe;
 
 mod curves;
 mod finish;
@@ -216,8 +218,15 @@ pub async fn train(
         };
         let schedule = schedule.clone();
         actors.push(tokio::spawn(async move {
-            if let Err(e) = run_actor(ctx).await {
-                schedule.stop(Some(format!("actor {a}: {e}")));
+            // A panic stops the run as an error does, at once and with its message:
+            // the other actors and the learner stop, and the run exits non-zero.
+            match AssertUnwindSafe(run_actor(ctx)).catch_unwind().await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => schedule.stop(Some(format!("actor {a}: {e}"))),
+                Err(panic) => schedule.stop(Some(format!(
+                    "actor {a} panicked: {}",
+                    panic_message(panic.as_ref())
+                ))),
             }
         }));
     }
@@ -248,7 +257,10 @@ pub async fn train(
     );
 
     for actor in actors {
-        let _ = actor.await;
+        // The task itself catches panics; a join error is a cancelled runtime.
+        if let Err(e) = actor.await {
+            schedule.stop(Some(format!("an actor task ended abnormally: {e}")));
+        }
     }
     schedule.stop(None);
     ticker.abort();
@@ -332,4 +344,13 @@ pub(crate) async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<
     let spec = env.spec().clone();
     env.close().await?;
     Ok(spec)
+}
+
+/// The text of a caught panic (`panic!` with a message gives a `&str` or a `String`).
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
 }
