@@ -114,10 +114,46 @@ pub struct ObjectiveSpec {
     /// `[env.kwargs] reward_scale = { task = 10.0 }`); `min` and `max` include it.
     #[serde(default = "unscaled")]
     pub scale: f64,
+    /// The formula the env declares for this reward, if the learner may compute it
+    /// instead of learning it (`learner.objectives[..].source` other than `learned`).
+    #[serde(default)]
+    pub closed_form: ClosedForm,
 }
 
 fn unscaled() -> f64 {
     1.0
+}
+
+/// What an env declares an objective's per-step reward to be as a function of the
+/// step's action alone (`ObjectiveSpec.closed_form` on the wire).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClosedForm {
+    /// Nothing declared either way: the server is older than the declaration (or its
+    /// native front was built before it, and dropped the field).
+    #[default]
+    Undeclared,
+    /// No closed form: the reward depends on more than the action.
+    None,
+    /// `reward = -scale * ||a||_2`, `a` the action the env executes for the step (the
+    /// agent sends the policy's sample clipped to [-1, 1] and mapped onto the Box,
+    /// `ActionBounds::to_env`; the server refuses actions outside the Box and nothing
+    /// clips or rescales them after) and `||.||_2` the Euclidean norm over all its
+    /// elements; Box action spaces only, `min`/`max` exact over the Box.
+    ActionNorm,
+    /// A value this agent does not know (a newer server's closed form).
+    Unrecognized(i32),
+}
+
+impl std::fmt::Display for ClosedForm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ClosedForm::Undeclared => write!(f, "nothing (the field is unset)"),
+            ClosedForm::None => write!(f, "closed_form = none"),
+            ClosedForm::ActionNorm => write!(f, "closed_form = action_norm"),
+            ClosedForm::Unrecognized(v) => write!(f, "closed_form = {v} (unknown to this agent)"),
+        }
+    }
 }
 
 /// What the server does when an instance's episode ends inside `step`.

@@ -17,7 +17,7 @@ from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry, RegistryError
 from env_server.security import SecurityConfigError, ServerTls, Tokens, check_exposure
 from env_server.service import DEFAULT_MAX_ENVS_PER_SESSION, DEFAULT_MAX_LIVE_ENVS, FRONTS
-from env_server.task import Objective
+from env_server.task import ClosedForm, Objective
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -92,7 +92,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _fmt_objective(o: Objective) -> str:
-    return f"    {o.name}: {o.description} [{o.min:g}, {o.max:g}]"
+    closed = "" if o.closed_form is ClosedForm.NONE else f", closed_form = {o.closed_form.value}"
+    return f"    {o.name}: {o.description} [{o.min:g}, {o.max:g}]{closed}"
 
 
 def print_list(registry: Registry, out=sys.stdout) -> None:

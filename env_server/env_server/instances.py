@@ -20,6 +20,7 @@ import abc
 import dataclasses
 import functools
 import logging
+import math
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -28,11 +29,12 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium
+import numpy as np
 
 from env_server import spaces
 from env_server.errors import Cancelled, ConstructorError, EnvServerError, Internal, InvalidArgument, quote
 from env_server.registry import EnvEntry, construct
-from env_server.task import Objective, StepOutcome, Task
+from env_server.task import ClosedForm, Objective, StepOutcome, Task
 
 log = logging.getLogger(__name__)
 
@@ -506,3 +508,29 @@ def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:
         spaces.leaf_dtype(task.action_space)
     except TypeError as exc:
         raise InvalidArgument(f"env_id: env '{env_id}' cannot be served: {exc}") from exc
+    for objective in task.objectives:
+        if objective.closed_form is ClosedForm.ACTION_NORM:
+            _check_action_norm(env_id, objective, task.action_space)
+
+
+def _check_action_norm(env_id: str, objective: Objective, action_space: gymnasium.spaces.Space) -> None:
+    """An objective declared `ClosedForm.ACTION_NORM` has a Box action space and exactly the
+    bounds of -scale * ||a||_2 over it, so a learner that computes it gets the env's reward."""
+    where = f"env '{env_id}' objective {objective.name!r} (closed_form = action_norm)"
+    if not isinstance(action_space, gymnasium.spaces.Box):
+        raise Internal(f"{where}: expected a Box action space, got {action_space}")
+    low = np.abs(np.asarray(action_space.low, dtype=np.float64)).ravel()
+    high = np.abs(np.asarray(action_space.high, dtype=np.float64)).ravel()
+    holds_zero = (np.asarray(action_space.low) <= 0).ravel() & (np.asarray(action_space.high) >= 0).ravel()
+    largest = math.sqrt(float(np.sum(np.maximum(low, high) ** 2)))
+    smallest = math.sqrt(float(np.sum(np.where(holds_zero, 0.0, np.minimum(low, high)) ** 2)))
+    want = (-objective.scale * largest + 0.0, -objective.scale * smallest + 0.0)  # + 0.0: no -0
+
+    def same(a: float, b: float) -> bool:
+        return a == b or math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9)
+
+    if not (same(objective.min, want[0]) and same(objective.max, want[1])):
+        raise Internal(
+            f"{where}: expected min, max = {want[0]:.9g}, {want[1]:.9g} (-||a||_2 over the action "
+            f"space {action_space}), got {objective.min:.9g}, {objective.max:.9g}"
+        )

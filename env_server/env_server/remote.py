@@ -20,7 +20,7 @@ from env_server import spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import Channel, NotFoundError, PathLike, RemoteError, Stream
 from env_server.session import Autoreset, SessionSpec
-from env_server.task import Objective
+from env_server.task import ClosedForm, Objective
 
 _PB_TO_DTYPE = {
     pb.DTYPE_FLOAT32: np.dtype(np.float32),
@@ -58,9 +58,24 @@ def tree(named: Sequence[pb.NamedTensor]) -> Any:
     return out
 
 
+#: ObjectiveSpec.closed_form read back; UNSPECIFIED (servers older than the field) and
+#: values this client does not know are UNDECLARED.
+_CLOSED_FORM_FROM_PB = {pb.CLOSED_FORM_NONE: ClosedForm.NONE, pb.CLOSED_FORM_ACTION_NORM: ClosedForm.ACTION_NORM}
+
+
 def objectives(specs: Sequence[pb.ObjectiveSpec]) -> tuple[Objective, ...]:
     # A scale of 0 comes from servers older than the field: nothing was scaled.
-    return tuple(Objective(o.name, o.description, o.min, o.max, o.scale or 1.0) for o in specs)
+    return tuple(
+        Objective(
+            o.name,
+            o.description,
+            o.min,
+            o.max,
+            o.scale or 1.0,
+            _CLOSED_FORM_FROM_PB.get(o.closed_form, ClosedForm.UNDECLARED),
+        )
+        for o in specs
+    )
 
 
 def _space_spec(space: pb.Space) -> dict[str, Any]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import enum
 import math
 from typing import Any, ClassVar
 
@@ -25,6 +26,28 @@ import gymnasium
 import numpy as np
 
 from env_server.errors import FailedPrecondition
+
+
+class ClosedForm(enum.Enum):
+    """What an objective's per-step reward is as a function of the step's action alone.
+
+    Declared on the `Objective` and served as `ObjectiveSpec.closed_form`: a learner may
+    compute a declared objective from the action instead of learning it (the agent's
+    `source = "action_norm"`), and refuses to for an objective that declares nothing.
+    """
+
+    #: No closed form: the reward depends on more than the action (the default).
+    NONE = "none"
+    #: reward = -||a||_2 (times `Objective.scale`): `a` is the action `Task.step`
+    #: receives, which is the client's action exactly as sent (the server refuses
+    #: actions outside the Box; nothing clips or rescales them), and ||.||_2 the
+    #: Euclidean norm over all its elements. Box action spaces only; `min` and `max`
+    #: must be the exact bounds of that over the Box (the server checks): for Box(-2, 2,
+    #: (1,)) min = -2, max = 0. A reward of -a^2 or -||a||_1 is NOT this: leave NONE.
+    ACTION_NORM = "action_norm"
+    #: Not declared either way: only on objectives a client read from a server older
+    #: than `ObjectiveSpec.closed_form` (a Task never sets it).
+    UNDECLARED = "undeclared"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +61,8 @@ class Objective:
     #: What the session multiplies this reward by (Make kwarg `reward_scale`); min and
     #: max are already scaled.
     scale: float = 1.0
+    #: The reward's closed form, if it has one a learner may use instead of a critic.
+    closed_form: ClosedForm = ClosedForm.NONE
 
 
 @dataclasses.dataclass

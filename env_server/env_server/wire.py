@@ -15,7 +15,7 @@ import numpy as np
 from env_server import spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.session import ResetResult, Session, StepResult
-from env_server.task import Objective
+from env_server.task import ClosedForm, Objective
 
 if sys.byteorder != "little":
     raise ImportError("env_server sends native numpy buffers as little-endian tensors; this host is big-endian")
@@ -53,9 +53,24 @@ def space_to_pb(spec: dict[str, Any]) -> pb.Space:
     )
 
 
+#: Objective.closed_form on the wire (and back: `remote.objectives`).
+CLOSED_FORM_TO_PB = {
+    ClosedForm.NONE: pb.CLOSED_FORM_NONE,
+    ClosedForm.ACTION_NORM: pb.CLOSED_FORM_ACTION_NORM,
+    ClosedForm.UNDECLARED: pb.CLOSED_FORM_UNSPECIFIED,
+}
+
+
 def objectives_pb(objectives: tuple[Objective, ...]) -> list[pb.ObjectiveSpec]:
     return [
-        pb.ObjectiveSpec(name=o.name, description=o.description, min=o.min, max=o.max, scale=o.scale)
+        pb.ObjectiveSpec(
+            name=o.name,
+            description=o.description,
+            min=o.min,
+            max=o.max,
+            scale=o.scale,
+            closed_form=CLOSED_FORM_TO_PB[o.closed_form],
+        )
         for o in objectives
     ]
 

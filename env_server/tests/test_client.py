@@ -130,6 +130,9 @@ def test_cli_list() -> None:
     for pattern in ("gym:<gymnasium id>", "mo:<MO-Gymnasium id>", "dmc:<domain>-<task>"):
         assert pattern in out
     assert "faulty  " in out  # entry-point envs are listed too
+    # A declared closed form is listed; none is the default and not shown.
+    assert "    action_norm: -||u||_2 of the torque [-2, 0], closed_form = action_norm\n" in out
+    assert "    task: Pendulum-v1's reward [-16.2736, 0]\n" in out
 
 
 def test_dict_observation_round_trip(address: str) -> None:

@@ -1,9 +1,10 @@
 //! Every shipped config loads, validates, and binds its objectives by name to the
-//! objectives the real env declares (one generic test over `configs/`).
+//! objectives the real env declares, closed-form sources included (one generic test
+//! over `configs/`).
 
 use std::path::{Path, PathBuf};
 
-use agent::algo::objectives::{LearnerDims, bind_config};
+use agent::algo::objectives::{LearnerDims, bind_config, check_declared};
 use agent::env::{Env, MakeOptions};
 use agent::run_config::TrainConfig;
 use agent::sweep::SweepConfig;
@@ -43,6 +44,8 @@ async fn every_run_config_binds_to_its_envs_objectives() {
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let dims = LearnerDims::from_spec(env.spec()).unwrap();
         bind_config(&cfg.learner, &dims).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        check_declared(&cfg.learner, &env.spec().objectives)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         env.close().await.unwrap();
     }
     h.server.stop().await.unwrap();

@@ -19,7 +19,8 @@ fn example() -> PathBuf {
 }
 
 /// A folder on which the example is installed as pip would leave it; returns the
-/// `PYTHONPATH` that shows it to a server.
+/// `PYTHONPATH` that shows it to a server (ahead of this process's own `PYTHONPATH`,
+/// which may name the env_server checkout under test).
 fn install(root: &Path) -> String {
     let text = std::fs::read_to_string(example().join("pyproject.toml")).unwrap();
     let pyproject: toml::Table = text.parse().unwrap();
@@ -47,7 +48,11 @@ fn install(root: &Path) -> String {
         format!("[env_server.envs]\n{lines}"),
     )
     .unwrap();
-    format!("{}:{}", root.display(), example().join("src").display())
+    let mut path = format!("{}:{}", root.display(), example().join("src").display());
+    if let Some(inherited) = std::env::var_os("PYTHONPATH").filter(|p| !p.is_empty()) {
+        path = format!("{path}:{}", inherited.to_string_lossy());
+    }
+    path
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -96,5 +101,45 @@ async fn the_example_plugin_trains_with_its_run_config() {
             "evaluation return {r} outside [{lo}, 0]"
         );
     }
+    server.stop().await.unwrap();
+}
+
+/// Issue 27's silent mistake, now refused: the pendulum preset's `source =
+/// "action_norm"` left on the example's `energy` objective (which is -a^2, and declares
+/// no closed form) stops `train` before it builds a learner or a run directory, with an
+/// error that names the field and the env's declaration.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_form_the_env_does_not_declare_is_refused_before_training() {
+    let site = tempfile::tempdir().unwrap();
+    let server = LocalServer::start(&ServerOptions {
+        environment: BTreeMap::from([("PYTHONPATH".into(), install(site.path()))]),
+        ..ServerOptions::default()
+    })
+    .await
+    .unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let mut cfg = TrainConfig::load_with(
+        &example().join("mompo.toml"),
+        &["learner.objectives.1.source=\"action_norm\"".into()],
+    )
+    .expect("the example's run config loads");
+    assert_eq!(cfg.learner.objectives[1].name, "energy");
+    cfg.run.runs_dir = runs.path().to_path_buf();
+    let err = train(
+        cfg,
+        &[server.address().to_string()],
+        TrainOptions::default(),
+    )
+    .await
+    .expect_err("energy declares no closed form");
+    assert_eq!(
+        err.to_string(),
+        r#"learner.objectives.1.source: source = "action_norm" computes objective "energy" in closed form, which needs the env to declare closed_form = action_norm for it; the env declares closed_form = none (use source = "learned")"#
+    );
+    assert_eq!(
+        std::fs::read_dir(runs.path()).unwrap().count(),
+        0,
+        "no run directory"
+    );
     server.stop().await.unwrap();
 }

@@ -13,7 +13,7 @@ use crate::config::{
 };
 pub use crate::nets::LearnerDims;
 use crate::nets::{ActionBounds, ActionKind};
-use crate::spec::ObjectiveSpec;
+use crate::spec::{ClosedForm, ObjectiveSpec};
 use serde::{Deserialize, Serialize};
 use tch::{Kind, Tensor};
 
@@ -99,13 +99,61 @@ fn check_names(what: &str, given: &[&str], env: &[String]) -> Result<(), ConfigE
     })
 }
 
-/// Binds MO-MPO objectives to env objectives by name (`bind_names` on the spec's names).
+/// Binds MO-MPO objectives to env objectives by name (`bind_names` on the spec's names),
+/// after `check_declared_sources`.
 pub fn bind(
     objectives: &[ObjectiveConfig],
     env: &[ObjectiveSpec],
 ) -> Result<BoundObjectives, ConfigError> {
+    check_declared_sources(objectives, env)?;
     let names: Vec<String> = env.iter().map(|o| o.name.clone()).collect();
     bind_names(objectives, &names)
+}
+
+/// The closed form a source computes, `None` for a learned critic.
+fn closed_form_of(source: ObjectiveSource) -> Option<ClosedForm> {
+    match source {
+        ObjectiveSource::Learned => None,
+        ObjectiveSource::ActionNorm => Some(ClosedForm::ActionNorm),
+    }
+}
+
+/// Refuses a closed-form `source` on an objective the env does not declare with that
+/// closed form (`ObjectiveSpec::closed_form`): the learner would optimize a formula the
+/// env's reward is not. A server older than the declaration declares nothing, so every
+/// closed-form source is refused against it. Objectives the env does not have are left
+/// to `bind_names`.
+pub fn check_declared_sources(
+    objectives: &[ObjectiveConfig],
+    env: &[ObjectiveSpec],
+) -> Result<(), ConfigError> {
+    for (i, cfg) in objectives.iter().enumerate() {
+        let (Some(wanted), Some(spec)) = (
+            closed_form_of(cfg.source),
+            env.iter().find(|o| o.name == cfg.name),
+        ) else {
+            continue;
+        };
+        if spec.closed_form != wanted {
+            return Err(ConfigError::Undeclared {
+                field: format!("learner.objectives.{i}.source"),
+                name: cfg.name.clone(),
+                given: cfg.source,
+                wanted,
+                declared: spec.closed_form,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `check_declared_sources` for a learner config: the objectives of MO-MPO and MO-V-MPO
+/// (the scalarized baselines learn every reward column and ignore them).
+pub fn check_declared(cfg: &LearnerConfig, env: &[ObjectiveSpec]) -> Result<(), ConfigError> {
+    match cfg.algorithm.scalarization() {
+        Some(_) => Ok(()),
+        None => check_declared_sources(&cfg.objectives, env),
+    }
 }
 
 /// Binds MO-MPO objectives to env reward names: every env objective exactly once.
@@ -364,6 +412,73 @@ mod tests {
             },
         ];
         bind_config(&cfg, &dims).unwrap();
+    }
+
+    fn declared(name: &str, closed_form: ClosedForm) -> ObjectiveSpec {
+        ObjectiveSpec {
+            name: name.into(),
+            description: String::new(),
+            min: -1.0,
+            max: 0.0,
+            scale: 1.0,
+            closed_form,
+        }
+    }
+
+    #[test]
+    fn a_closed_form_source_needs_the_envs_declaration() {
+        let cfg = [
+            obj("reach", 0.1, ObjectiveSource::Learned),
+            obj("energy", 0.01, ObjectiveSource::ActionNorm),
+        ];
+        let env = |energy| {
+            vec![
+                declared("reach", ClosedForm::None),
+                declared("energy", energy),
+            ]
+        };
+        bind(&cfg, &env(ClosedForm::ActionNorm)).unwrap();
+        let msg = bind(&cfg, &env(ClosedForm::None)).unwrap_err().to_string();
+        assert_eq!(
+            msg,
+            r#"learner.objectives.1.source: source = "action_norm" computes objective "energy" in closed form, which needs the env to declare closed_form = action_norm for it; the env declares closed_form = none (use source = "learned")"#
+        );
+        // A server older than the declaration: refused, and the message says why.
+        let msg = bind(&cfg, &env(ClosedForm::Undeclared))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("the env declares nothing (the field is unset): its server is older than ObjectiveSpec.closed_form"),
+            "{msg}"
+        );
+        let msg = bind(&cfg, &env(ClosedForm::Unrecognized(7)))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("closed_form = 7 (unknown to this agent)"),
+            "{msg}"
+        );
+        // Learned sources need nothing declared, so an old server still trains them.
+        let learned = [
+            obj("reach", 0.1, ObjectiveSource::Learned),
+            obj("energy", 0.01, ObjectiveSource::Learned),
+        ];
+        bind(&learned, &env(ClosedForm::Undeclared)).unwrap();
+        // The scalarized baselines ignore `objectives`: nothing to refuse.
+        let scalarized = LearnerConfig {
+            algorithm: crate::config::Algorithm::ScalarizedMpo {
+                epsilon: 0.1,
+                weights: Vec::new(),
+            },
+            objectives: cfg.to_vec(),
+            ..LearnerConfig::default()
+        };
+        check_declared(&scalarized, &env(ClosedForm::None)).unwrap();
+        let mompo = LearnerConfig {
+            algorithm: crate::config::Algorithm::MoMpo,
+            ..scalarized
+        };
+        assert!(check_declared(&mompo, &env(ClosedForm::None)).is_err());
     }
 
     #[test]

@@ -6,6 +6,7 @@ use std::time::Instant;
 use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::{Env, MakeOptions, random_action};
 use agent::metrics::format_vector;
+use agent::spec::ClosedForm;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
@@ -22,8 +23,13 @@ pub(crate) async fn list_envs(client: &EnvClient) -> Result<()> {
     for env in client.list_envs().await? {
         println!("\n{:<16} {}", env.env_id, env.description);
         for o in env.objectives {
+            // What `source` other than "learned" the agent accepts for it.
+            let closed = match o.closed_form {
+                ClosedForm::ActionNorm => "  (closed form: source = \"action_norm\" allowed)",
+                _ => "",
+            };
             println!(
-                "    {:<14} [{}, {}]  {}",
+                "    {:<14} [{}, {}]  {}{closed}",
                 o.name, o.min, o.max, o.description
             );
         }

@@ -26,8 +26,21 @@ pub enum ObjectiveSource {
     #[default]
     Learned,
     /// `-||a||_2` computed exactly from the sampled action (humanoid run, appendix A);
-    /// no critic. The env's reward column of that name is only logged.
+    /// no critic. The env's reward column of that name is only logged. Allowed only on
+    /// an objective whose env declares `closed_form = action_norm`
+    /// (`ObjectiveSpec::closed_form`: pendulum, humanoid-run); any other objective, and
+    /// every objective of a server older than that declaration, is refused before
+    /// training.
     ActionNorm,
+}
+
+impl std::fmt::Display for ObjectiveSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ObjectiveSource::Learned => "learned",
+            ObjectiveSource::ActionNorm => "action_norm",
+        })
+    }
 }
 
 /// One MO-MPO objective, bound by name to an env reward column (Table 4 epsilons).
@@ -203,6 +216,23 @@ pub enum ConfigError {
         /// Names given more than once.
         duplicate: Vec<String>,
     },
+    /// A closed-form source on an objective the env does not declare with that closed form.
+    #[error(
+        "{field}: source = \"{given}\" computes objective {name:?} in closed form, which needs the env to declare {wanted} for it; the env declares {declared}{}",
+        undeclared_hint(.declared)
+    )]
+    Undeclared {
+        /// The config field, `learner.objectives.<i>.source`.
+        field: String,
+        /// The objective's name.
+        name: String,
+        /// The source the config gave.
+        given: ObjectiveSource,
+        /// The closed form that source needs.
+        wanted: crate::spec::ClosedForm,
+        /// What the env declares for the objective.
+        declared: crate::spec::ClosedForm,
+    },
     /// A closed-form objective that the action space or algorithm does not allow.
     #[error("objective {name:?} has source {kind:?}, which {reason}")]
     Unsupported {
@@ -213,6 +243,15 @@ pub enum ConfigError {
         /// Why not, e.g. "needs continuous actions".
         reason: String,
     },
+}
+
+fn undeclared_hint(declared: &crate::spec::ClosedForm) -> &'static str {
+    match declared {
+        crate::spec::ClosedForm::Undeclared => {
+            ": its server is older than ObjectiveSpec.closed_form, or runs a native front built before it (rebuild it with scripts/setup.sh); upgrade it, or use source = \"learned\""
+        }
+        _ => " (use source = \"learned\")",
+    }
 }
 
 fn invalid(field: &str, requirement: &str, got: impl std::fmt::Debug) -> ConfigError {

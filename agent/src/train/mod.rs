@@ -21,7 +21,7 @@ use tch::Device;
 use tokio::sync::watch;
 
 use crate::actor::{ActorContext, run_actor};
-use crate::algo::objectives::LearnerDims;
+use crate::algo::objectives::{LearnerDims, check_declared};
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
 use crate::env::grpc::EnvClient;
@@ -160,6 +160,7 @@ pub async fn train(
     let servers = Arc::new(ServerPool::connect(addresses, &cfg.env.connection).await?);
     let spec = probe_spec(&servers.first().client, &cfg).await?;
     let dims = LearnerDims::from_spec(&spec)?;
+    check_declared(&cfg.learner, &spec.objectives)?;
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
     let device = choose_device(&cfg.learner, &dims)?;

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from env_server.backends.dm_control import DmcTask
-from env_server.task import Objective
+from env_server.task import ClosedForm, Objective
 
 
 class HumanoidRun(DmcTask):
@@ -30,7 +30,7 @@ class HumanoidRun(DmcTask):
     description = "dm_control humanoid run (paper B.3): [task, action_norm], obs 67, act 21, 1000 steps"
     objectives = (
         Objective("task", "dm_control humanoid run reward", 0.0, 1.0),
-        Objective("action_norm", "-||a||_2 of the action", -math.sqrt(21.0), 0.0),
+        Objective("action_norm", "-||a||_2 of the action", -math.sqrt(21.0), 0.0, closed_form=ClosedForm.ACTION_NORM),
     )
     max_episode_steps = 1000
     # Tracks the body from the side, so a run shows as motion across the frame.

@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import Any
 
 from env_server.backends.gymnasium import GymTask
-from env_server.task import Objective, StepOutcome
+from env_server.task import ClosedForm, Objective, StepOutcome
 
 
 class Pendulum(GymTask):
@@ -29,7 +29,7 @@ class Pendulum(GymTask):
     description = "gymnasium Pendulum-v1 with [task, action_norm = -||u||_2], obs 3, act 1 in [-2, 2], 200 steps"
     objectives = (
         Objective("task", "Pendulum-v1's reward", -16.2736044, 0.0),
-        Objective("action_norm", "-||u||_2 of the torque", -2.0, 0.0),
+        Objective("action_norm", "-||u||_2 of the torque", -2.0, 0.0, closed_form=ClosedForm.ACTION_NORM),
     )
     max_episode_steps = 200
 

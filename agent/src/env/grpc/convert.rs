@@ -6,7 +6,9 @@ use mo_env_proto::v1 as pb;
 
 use crate::env::{EpisodeSummary, HostTensor, NamedTensor, Observation, StepResult};
 use crate::error::EnvError;
-use crate::spec::{AutoresetMode, BoxSpace, DType, DiscreteSpace, EnvSpec, ObjectiveSpec, Space};
+use crate::spec::{
+    AutoresetMode, BoxSpace, ClosedForm, DType, DiscreteSpace, EnvSpec, ObjectiveSpec, Space,
+};
 
 pub(super) fn missing(field: &str) -> EnvError {
     EnvError::Protocol {
@@ -162,6 +164,17 @@ pub(super) fn objective_from_proto(o: pb::ObjectiveSpec) -> ObjectiveSpec {
         max: o.max,
         // Servers older than the field send 0: nothing was scaled.
         scale: if o.scale == 0.0 { 1.0 } else { o.scale },
+        closed_form: closed_form_from_proto(o.closed_form),
+    }
+}
+
+fn closed_form_from_proto(raw: i32) -> ClosedForm {
+    match pb::ClosedForm::try_from(raw) {
+        // Servers older than the field send 0.
+        Ok(pb::ClosedForm::Unspecified) => ClosedForm::Undeclared,
+        Ok(pb::ClosedForm::None) => ClosedForm::None,
+        Ok(pb::ClosedForm::ActionNorm) => ClosedForm::ActionNorm,
+        Err(_) => ClosedForm::Unrecognized(raw),
     }
 }
 

@@ -24,7 +24,7 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x13mo_env/v1/env.proto\x12\tmo_env.v1\"F\n\x06Tensor\x12\x1f\n\x05\x64type\x18\x01 \x01(\x0e\x32\x10.mo_env.v1.DType\x12\r\n\x05shape\x18\x02 \x03(\x03\x12\x0c\n\x04\x64\x61ta\x18\x03 \x01(\x0c\">\n\x0bNamedTensor\x12\x0c\n\x04name\x18\x01 \x01(\t\x12!\n\x06tensor\x18\x02 \x01(\x0b\x32\x11.mo_env.v1.Tensor\"U\n\x08\x42oxSpace\x12\x1f\n\x05\x64type\x18\x01 \x01(\x0e\x32\x10.mo_env.v1.DType\x12\r\n\x05shape\x18\x02 \x03(\x03\x12\x0b\n\x03low\x18\x03 \x03(\x01\x12\x0c\n\x04high\x18\x04 \x03(\x01\")\n\rDiscreteSpace\x12\t\n\x01n\x18\x01 \x01(\x03\x12\r\n\x05start\x18\x02 \x01(\x03\"3\n\tDictSpace\x12&\n\x07\x65ntries\x18\x01 \x03(\x0b\x32\x15.mo_env.v1.NamedSpace\";\n\nNamedSpace\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1f\n\x05space\x18\x02 \x01(\x0b\x32\x10.mo_env.v1.Space\"\x87\x01\n\x05Space\x12\"\n\x03\x62ox\x18\x01 \x01(\x0b\x32\x13.mo_env.v1.BoxSpaceH\x00\x12,\n\x08\x64iscrete\x18\x02 \x01(\x0b\x32\x18.mo_env.v1.DiscreteSpaceH\x00\x12$\n\x04\x64ict\x18\x03 \x01(\x0b\x32\x14.mo_env.v1.DictSpaceH\x00\x42\x06\n\x04kind\"[\n\rObjectiveSpec\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x13\n\x0b\x64\x65scription\x18\x02 \x01(\t\x12\x0b\n\x03min\x18\x03 \x01(\x01\x12\x0b\n\x03max\x18\x04 \x01(\x01\x12\r\n\x05scale\x18\x05 \x01(\x01\"\xa0\x02\n\x07\x45nvSpec\x12\x0e\n\x06\x65nv_id\x18\x01 \x01(\t\x12\x10\n\x08num_envs\x18\x02 \x01(\x05\x12+\n\x11observation_space\x18\x03 \x01(\x0b\x32\x10.mo_env.v1.Space\x12&\n\x0c\x61\x63tion_space\x18\x04 \x01(\x0b\x32\x10.mo_env.v1.Space\x12,\n\nobjectives\x18\x05 \x03(\x0b\x32\x18.mo_env.v1.ObjectiveSpec\x12\x19\n\x11max_episode_steps\x18\x06 \x01(\x03\x12\x30\n\x0e\x61utoreset_mode\x18\x07 \x01(\x0e\x32\x18.mo_env.v1.AutoresetMode\x12\x10\n\x08\x64iscount\x18\x08 \x01(\x01\x12\x11\n\tinfo_keys\x18\t \x03(\t\"\x13\n\x11GetVersionRequest\"w\n\x12GetVersionResponse\x12\x18\n\x10protocol_version\x18\x01 \x01(\t\x12\x16\n\x0eserver_version\x18\x02 \x01(\t\x12\x14\n\x0c\x63\x61pabilities\x18\x03 \x03(\t\x12\x19\n\x11max_message_bytes\x18\x04 \x01(\x03\"\x11\n\x0fListEnvsRequest\"\\\n\x07\x45nvInfo\x12\x0e\n\x06\x65nv_id\x18\x01 \x01(\t\x12\x13\n\x0b\x64\x65scription\x18\x02 \x01(\t\x12,\n\nobjectives\x18\x03 \x03(\x0b\x32\x18.mo_env.v1.ObjectiveSpec\"4\n\x10ListEnvsResponse\x12 \n\x04\x65nvs\x18\x01 \x03(\x0b\x32\x12.mo_env.v1.EnvInfo\"\xde\x01\n\x0bMakeRequest\x12\x0e\n\x06\x65nv_id\x18\x01 \x01(\t\x12\x10\n\x08num_envs\x18\x02 \x01(\x05\x12\x13\n\x0bkwargs_json\x18\x03 \x01(\t\x12\x11\n\x04seed\x18\x04 \x01(\x04H\x00\x88\x01\x01\x12\x30\n\x0e\x61utoreset_mode\x18\x05 \x01(\x0e\x32\x18.mo_env.v1.AutoresetMode\x12\x15\n\x08\x64iscount\x18\x06 \x01(\x01H\x01\x88\x01\x01\x12\x11\n\tinfo_keys\x18\x07 \x03(\t\x12\x13\n\x0bnum_workers\x18\x08 \x01(\x05\x42\x07\n\x05_seedB\x0b\n\t_discount\"[\n\x0cMakeResponse\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12 \n\x04spec\x18\x02 \x01(\x0b\x32\x12.mo_env.v1.EnvSpec\x12\x15\n\rlease_seconds\x18\x03 \x01(\x01\"F\n\x0cResetRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x13\n\x0b\x65nv_indices\x18\x02 \x03(\x05\x12\r\n\x05seeds\x18\x03 \x03(\x04\"b\n\rResetResponse\x12+\n\x0bobservation\x18\x01 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\x12$\n\x04info\x18\x02 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\"D\n\x0bStepRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12!\n\x06\x61\x63tion\x18\x02 \x01(\x0b\x32\x11.mo_env.v1.Tensor\"\x89\x01\n\nEpisodeEnd\x12\x11\n\tenv_index\x18\x01 \x01(\x05\x12\x16\n\x0e\x65pisode_return\x18\x02 \x03(\x01\x12\x19\n\x11\x64iscounted_return\x18\x03 \x03(\x01\x12\x0e\n\x06length\x18\x04 \x01(\x03\x12\x12\n\nterminated\x18\x05 \x01(\x08\x12\x11\n\ttruncated\x18\x06 \x01(\x08\"\x87\x02\n\x0cStepResponse\x12+\n\x0bobservation\x18\x01 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\x12!\n\x06reward\x18\x02 \x01(\x0b\x32\x11.mo_env.v1.Tensor\x12\x12\n\nterminated\x18\x03 \x03(\x08\x12\x11\n\ttruncated\x18\x04 \x03(\x08\x12$\n\x04info\x18\x05 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\x12\'\n\x08\x65pisodes\x18\x06 \x03(\x0b\x32\x15.mo_env.v1.EpisodeEnd\x12\x31\n\x11\x66inal_observation\x18\x07 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\"\"\n\x0c\x43loseRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\x0f\n\rCloseResponse\"g\n\rRenderRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x13\n\x0b\x65nv_indices\x18\x02 \x03(\x05\x12\r\n\x05width\x18\x03 \x01(\x05\x12\x0e\n\x06height\x18\x04 \x01(\x05\x12\x0e\n\x06\x63\x61mera\x18\x05 \x01(\t\"Q\n\x0eRenderResponse\x12!\n\x06\x66rames\x18\x01 \x01(\x0b\x32\x11.mo_env.v1.Tensor\x12\x0f\n\x07\x63\x61meras\x18\x02 \x03(\t\x12\x0b\n\x03\x66ps\x18\x03 \x01(\x01*\x87\x01\n\x05\x44Type\x12\x15\n\x11\x44TYPE_UNSPECIFIED\x10\x00\x12\x11\n\rDTYPE_FLOAT32\x10\x01\x12\x11\n\rDTYPE_FLOAT64\x10\x02\x12\x0f\n\x0b\x44TYPE_INT32\x10\x03\x12\x0f\n\x0b\x44TYPE_INT64\x10\x04\x12\x0f\n\x0b\x44TYPE_UINT8\x10\x05\x12\x0e\n\nDTYPE_BOOL\x10\x06*\x88\x01\n\rAutoresetMode\x12\x1e\n\x1a\x41UTORESET_MODE_UNSPECIFIED\x10\x00\x12\x1c\n\x18\x41UTORESET_MODE_SAME_STEP\x10\x01\x12\x1c\n\x18\x41UTORESET_MODE_NEXT_STEP\x10\x02\x12\x1b\n\x17\x41UTORESET_MODE_DISABLED\x10\x03\x32\xd0\x04\n\nEnvService\x12I\n\nGetVersion\x12\x1c.mo_env.v1.GetVersionRequest\x1a\x1d.mo_env.v1.GetVersionResponse\x12\x43\n\x08ListEnvs\x12\x1a.mo_env.v1.ListEnvsRequest\x1a\x1b.mo_env.v1.ListEnvsResponse\x12\x37\n\x04Make\x12\x16.mo_env.v1.MakeRequest\x1a\x17.mo_env.v1.MakeResponse\x12:\n\x05Reset\x12\x17.mo_env.v1.ResetRequest\x1a\x18.mo_env.v1.ResetResponse\x12\x37\n\x04Step\x12\x16.mo_env.v1.StepRequest\x1a\x17.mo_env.v1.StepResponse\x12\x41\n\nStepStream\x12\x16.mo_env.v1.StepRequest\x1a\x17.mo_env.v1.StepResponse(\x01\x30\x01\x12\x41\n\x0c\x43loseSession\x12\x17.mo_env.v1.CloseRequest\x1a\x18.mo_env.v1.CloseResponse\x12?\n\x05\x43lose\x12\x17.mo_env.v1.CloseRequest\x1a\x18.mo_env.v1.CloseResponse\"\x03\x88\x02\x01\x12=\n\x06Render\x12\x18.mo_env.v1.RenderRequest\x1a\x19.mo_env.v1.RenderResponseb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x13mo_env/v1/env.proto\x12\tmo_env.v1\"F\n\x06Tensor\x12\x1f\n\x05\x64type\x18\x01 \x01(\x0e\x32\x10.mo_env.v1.DType\x12\r\n\x05shape\x18\x02 \x03(\x03\x12\x0c\n\x04\x64\x61ta\x18\x03 \x01(\x0c\">\n\x0bNamedTensor\x12\x0c\n\x04name\x18\x01 \x01(\t\x12!\n\x06tensor\x18\x02 \x01(\x0b\x32\x11.mo_env.v1.Tensor\"U\n\x08\x42oxSpace\x12\x1f\n\x05\x64type\x18\x01 \x01(\x0e\x32\x10.mo_env.v1.DType\x12\r\n\x05shape\x18\x02 \x03(\x03\x12\x0b\n\x03low\x18\x03 \x03(\x01\x12\x0c\n\x04high\x18\x04 \x03(\x01\")\n\rDiscreteSpace\x12\t\n\x01n\x18\x01 \x01(\x03\x12\r\n\x05start\x18\x02 \x01(\x03\"3\n\tDictSpace\x12&\n\x07\x65ntries\x18\x01 \x03(\x0b\x32\x15.mo_env.v1.NamedSpace\";\n\nNamedSpace\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1f\n\x05space\x18\x02 \x01(\x0b\x32\x10.mo_env.v1.Space\"\x87\x01\n\x05Space\x12\"\n\x03\x62ox\x18\x01 \x01(\x0b\x32\x13.mo_env.v1.BoxSpaceH\x00\x12,\n\x08\x64iscrete\x18\x02 \x01(\x0b\x32\x18.mo_env.v1.DiscreteSpaceH\x00\x12$\n\x04\x64ict\x18\x03 \x01(\x0b\x32\x14.mo_env.v1.DictSpaceH\x00\x42\x06\n\x04kind\"\x87\x01\n\rObjectiveSpec\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x13\n\x0b\x64\x65scription\x18\x02 \x01(\t\x12\x0b\n\x03min\x18\x03 \x01(\x01\x12\x0b\n\x03max\x18\x04 \x01(\x01\x12\r\n\x05scale\x18\x05 \x01(\x01\x12*\n\x0b\x63losed_form\x18\x06 \x01(\x0e\x32\x15.mo_env.v1.ClosedForm\"\xa0\x02\n\x07\x45nvSpec\x12\x0e\n\x06\x65nv_id\x18\x01 \x01(\t\x12\x10\n\x08num_envs\x18\x02 \x01(\x05\x12+\n\x11observation_space\x18\x03 \x01(\x0b\x32\x10.mo_env.v1.Space\x12&\n\x0c\x61\x63tion_space\x18\x04 \x01(\x0b\x32\x10.mo_env.v1.Space\x12,\n\nobjectives\x18\x05 \x03(\x0b\x32\x18.mo_env.v1.ObjectiveSpec\x12\x19\n\x11max_episode_steps\x18\x06 \x01(\x03\x12\x30\n\x0e\x61utoreset_mode\x18\x07 \x01(\x0e\x32\x18.mo_env.v1.AutoresetMode\x12\x10\n\x08\x64iscount\x18\x08 \x01(\x01\x12\x11\n\tinfo_keys\x18\t \x03(\t\"\x13\n\x11GetVersionRequest\"w\n\x12GetVersionResponse\x12\x18\n\x10protocol_version\x18\x01 \x01(\t\x12\x16\n\x0eserver_version\x18\x02 \x01(\t\x12\x14\n\x0c\x63\x61pabilities\x18\x03 \x03(\t\x12\x19\n\x11max_message_bytes\x18\x04 \x01(\x03\"\x11\n\x0fListEnvsRequest\"\\\n\x07\x45nvInfo\x12\x0e\n\x06\x65nv_id\x18\x01 \x01(\t\x12\x13\n\x0b\x64\x65scription\x18\x02 \x01(\t\x12,\n\nobjectives\x18\x03 \x03(\x0b\x32\x18.mo_env.v1.ObjectiveSpec\"4\n\x10ListEnvsResponse\x12 \n\x04\x65nvs\x18\x01 \x03(\x0b\x32\x12.mo_env.v1.EnvInfo\"\xde\x01\n\x0bMakeRequest\x12\x0e\n\x06\x65nv_id\x18\x01 \x01(\t\x12\x10\n\x08num_envs\x18\x02 \x01(\x05\x12\x13\n\x0bkwargs_json\x18\x03 \x01(\t\x12\x11\n\x04seed\x18\x04 \x01(\x04H\x00\x88\x01\x01\x12\x30\n\x0e\x61utoreset_mode\x18\x05 \x01(\x0e\x32\x18.mo_env.v1.AutoresetMode\x12\x15\n\x08\x64iscount\x18\x06 \x01(\x01H\x01\x88\x01\x01\x12\x11\n\tinfo_keys\x18\x07 \x03(\t\x12\x13\n\x0bnum_workers\x18\x08 \x01(\x05\x42\x07\n\x05_seedB\x0b\n\t_discount\"[\n\x0cMakeResponse\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12 \n\x04spec\x18\x02 \x01(\x0b\x32\x12.mo_env.v1.EnvSpec\x12\x15\n\rlease_seconds\x18\x03 \x01(\x01\"F\n\x0cResetRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x13\n\x0b\x65nv_indices\x18\x02 \x03(\x05\x12\r\n\x05seeds\x18\x03 \x03(\x04\"b\n\rResetResponse\x12+\n\x0bobservation\x18\x01 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\x12$\n\x04info\x18\x02 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\"D\n\x0bStepRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12!\n\x06\x61\x63tion\x18\x02 \x01(\x0b\x32\x11.mo_env.v1.Tensor\"\x89\x01\n\nEpisodeEnd\x12\x11\n\tenv_index\x18\x01 \x01(\x05\x12\x16\n\x0e\x65pisode_return\x18\x02 \x03(\x01\x12\x19\n\x11\x64iscounted_return\x18\x03 \x03(\x01\x12\x0e\n\x06length\x18\x04 \x01(\x03\x12\x12\n\nterminated\x18\x05 \x01(\x08\x12\x11\n\ttruncated\x18\x06 \x01(\x08\"\x87\x02\n\x0cStepResponse\x12+\n\x0bobservation\x18\x01 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\x12!\n\x06reward\x18\x02 \x01(\x0b\x32\x11.mo_env.v1.Tensor\x12\x12\n\nterminated\x18\x03 \x03(\x08\x12\x11\n\ttruncated\x18\x04 \x03(\x08\x12$\n\x04info\x18\x05 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\x12\'\n\x08\x65pisodes\x18\x06 \x03(\x0b\x32\x15.mo_env.v1.EpisodeEnd\x12\x31\n\x11\x66inal_observation\x18\x07 \x03(\x0b\x32\x16.mo_env.v1.NamedTensor\"\"\n\x0c\x43loseRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\x0f\n\rCloseResponse\"g\n\rRenderRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x13\n\x0b\x65nv_indices\x18\x02 \x03(\x05\x12\r\n\x05width\x18\x03 \x01(\x05\x12\x0e\n\x06height\x18\x04 \x01(\x05\x12\x0e\n\x06\x63\x61mera\x18\x05 \x01(\t\"Q\n\x0eRenderResponse\x12!\n\x06\x66rames\x18\x01 \x01(\x0b\x32\x11.mo_env.v1.Tensor\x12\x0f\n\x07\x63\x61meras\x18\x02 \x03(\t\x12\x0b\n\x03\x66ps\x18\x03 \x01(\x01*\x87\x01\n\x05\x44Type\x12\x15\n\x11\x44TYPE_UNSPECIFIED\x10\x00\x12\x11\n\rDTYPE_FLOAT32\x10\x01\x12\x11\n\rDTYPE_FLOAT64\x10\x02\x12\x0f\n\x0b\x44TYPE_INT32\x10\x03\x12\x0f\n\x0b\x44TYPE_INT64\x10\x04\x12\x0f\n\x0b\x44TYPE_UINT8\x10\x05\x12\x0e\n\nDTYPE_BOOL\x10\x06*\\\n\nClosedForm\x12\x1b\n\x17\x43LOSED_FORM_UNSPECIFIED\x10\x00\x12\x14\n\x10\x43LOSED_FORM_NONE\x10\x01\x12\x1b\n\x17\x43LOSED_FORM_ACTION_NORM\x10\x02*\x88\x01\n\rAutoresetMode\x12\x1e\n\x1a\x41UTORESET_MODE_UNSPECIFIED\x10\x00\x12\x1c\n\x18\x41UTORESET_MODE_SAME_STEP\x10\x01\x12\x1c\n\x18\x41UTORESET_MODE_NEXT_STEP\x10\x02\x12\x1b\n\x17\x41UTORESET_MODE_DISABLED\x10\x03\x32\xd0\x04\n\nEnvService\x12I\n\nGetVersion\x12\x1c.mo_env.v1.GetVersionRequest\x1a\x1d.mo_env.v1.GetVersionResponse\x12\x43\n\x08ListEnvs\x12\x1a.mo_env.v1.ListEnvsRequest\x1a\x1b.mo_env.v1.ListEnvsResponse\x12\x37\n\x04Make\x12\x16.mo_env.v1.MakeRequest\x1a\x17.mo_env.v1.MakeResponse\x12:\n\x05Reset\x12\x17.mo_env.v1.ResetRequest\x1a\x18.mo_env.v1.ResetResponse\x12\x37\n\x04Step\x12\x16.mo_env.v1.StepRequest\x1a\x17.mo_env.v1.StepResponse\x12\x41\n\nStepStream\x12\x16.mo_env.v1.StepRequest\x1a\x17.mo_env.v1.StepResponse(\x01\x30\x01\x12\x41\n\x0c\x43loseSession\x12\x17.mo_env.v1.CloseRequest\x1a\x18.mo_env.v1.CloseResponse\x12?\n\x05\x43lose\x12\x17.mo_env.v1.CloseRequest\x1a\x18.mo_env.v1.CloseResponse\"\x03\x88\x02\x01\x12=\n\x06Render\x12\x18.mo_env.v1.RenderRequest\x1a\x19.mo_env.v1.RenderResponseb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -33,10 +33,12 @@ if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
   _globals['_ENVSERVICE'].methods_by_name['Close']._loaded_options = None
   _globals['_ENVSERVICE'].methods_by_name['Close']._serialized_options = b'\210\002\001'
-  _globals['_DTYPE']._serialized_start=2453
-  _globals['_DTYPE']._serialized_end=2588
-  _globals['_AUTORESETMODE']._serialized_start=2591
-  _globals['_AUTORESETMODE']._serialized_end=2727
+  _globals['_DTYPE']._serialized_start=2498
+  _globals['_DTYPE']._serialized_end=2633
+  _globals['_CLOSEDFORM']._serialized_start=2635
+  _globals['_CLOSEDFORM']._serialized_end=2727
+  _globals['_AUTORESETMODE']._serialized_start=2730
+  _globals['_AUTORESETMODE']._serialized_end=2866
   _globals['_TENSOR']._serialized_start=34
   _globals['_TENSOR']._serialized_end=104
   _globals['_NAMEDTENSOR']._serialized_start=106
@@ -51,42 +53,42 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_NAMEDSPACE']._serialized_end=412
   _globals['_SPACE']._serialized_start=415
   _globals['_SPACE']._serialized_end=550
-  _globals['_OBJECTIVESPEC']._serialized_start=552
-  _globals['_OBJECTIVESPEC']._serialized_end=643
-  _globals['_ENVSPEC']._serialized_start=646
-  _globals['_ENVSPEC']._serialized_end=934
-  _globals['_GETVERSIONREQUEST']._serialized_start=936
-  _globals['_GETVERSIONREQUEST']._serialized_end=955
-  _globals['_GETVERSIONRESPONSE']._serialized_start=957
-  _globals['_GETVERSIONRESPONSE']._serialized_end=1076
-  _globals['_LISTENVSREQUEST']._serialized_start=1078
-  _globals['_LISTENVSREQUEST']._serialized_end=1095
-  _globals['_ENVINFO']._serialized_start=1097
-  _globals['_ENVINFO']._serialized_end=1189
-  _globals['_LISTENVSRESPONSE']._serialized_start=1191
-  _globals['_LISTENVSRESPONSE']._serialized_end=1243
-  _globals['_MAKEREQUEST']._serialized_start=1246
-  _globals['_MAKEREQUEST']._serialized_end=1468
-  _globals['_MAKERESPONSE']._serialized_start=1470
-  _globals['_MAKERESPONSE']._serialized_end=1561
-  _globals['_RESETREQUEST']._serialized_start=1563
-  _globals['_RESETREQUEST']._serialized_end=1633
-  _globals['_RESETRESPONSE']._serialized_start=1635
-  _globals['_RESETRESPONSE']._serialized_end=1733
-  _globals['_STEPREQUEST']._serialized_start=1735
-  _globals['_STEPREQUEST']._serialized_end=1803
-  _globals['_EPISODEEND']._serialized_start=1806
-  _globals['_EPISODEEND']._serialized_end=1943
-  _globals['_STEPRESPONSE']._serialized_start=1946
-  _globals['_STEPRESPONSE']._serialized_end=2209
-  _globals['_CLOSEREQUEST']._serialized_start=2211
-  _globals['_CLOSEREQUEST']._serialized_end=2245
-  _globals['_CLOSERESPONSE']._serialized_start=2247
-  _globals['_CLOSERESPONSE']._serialized_end=2262
-  _globals['_RENDERREQUEST']._serialized_start=2264
-  _globals['_RENDERREQUEST']._serialized_end=2367
-  _globals['_RENDERRESPONSE']._serialized_start=2369
-  _globals['_RENDERRESPONSE']._serialized_end=2450
-  _globals['_ENVSERVICE']._serialized_start=2730
-  _globals['_ENVSERVICE']._serialized_end=3322
+  _globals['_OBJECTIVESPEC']._serialized_start=553
+  _globals['_OBJECTIVESPEC']._serialized_end=688
+  _globals['_ENVSPEC']._serialized_start=691
+  _globals['_ENVSPEC']._serialized_end=979
+  _globals['_GETVERSIONREQUEST']._serialized_start=981
+  _globals['_GETVERSIONREQUEST']._serialized_end=1000
+  _globals['_GETVERSIONRESPONSE']._serialized_start=1002
+  _globals['_GETVERSIONRESPONSE']._serialized_end=1121
+  _globals['_LISTENVSREQUEST']._serialized_start=1123
+  _globals['_LISTENVSREQUEST']._serialized_end=1140
+  _globals['_ENVINFO']._serialized_start=1142
+  _globals['_ENVINFO']._serialized_end=1234
+  _globals['_LISTENVSRESPONSE']._serialized_start=1236
+  _globals['_LISTENVSRESPONSE']._serialized_end=1288
+  _globals['_MAKEREQUEST']._serialized_start=1291
+  _globals['_MAKEREQUEST']._serialized_end=1513
+  _globals['_MAKERESPONSE']._serialized_start=1515
+  _globals['_MAKERESPONSE']._serialized_end=1606
+  _globals['_RESETREQUEST']._serialized_start=1608
+  _globals['_RESETREQUEST']._serialized_end=1678
+  _globals['_RESETRESPONSE']._serialized_start=1680
+  _globals['_RESETRESPONSE']._serialized_end=1778
+  _globals['_STEPREQUEST']._serialized_start=1780
+  _globals['_STEPREQUEST']._serialized_end=1848
+  _globals['_EPISODEEND']._serialized_start=1851
+  _globals['_EPISODEEND']._serialized_end=1988
+  _globals['_STEPRESPONSE']._serialized_start=1991
+  _globals['_STEPRESPONSE']._serialized_end=2254
+  _globals['_CLOSEREQUEST']._serialized_start=2256
+  _globals['_CLOSEREQUEST']._serialized_end=2290
+  _globals['_CLOSERESPONSE']._serialized_start=2292
+  _globals['_CLOSERESPONSE']._serialized_end=2307
+  _globals['_RENDERREQUEST']._serialized_start=2309
+  _globals['_RENDERREQUEST']._serialized_end=2412
+  _globals['_RENDERRESPONSE']._serialized_start=2414
+  _globals['_RENDERRESPONSE']._serialized_end=2495
+  _globals['_ENVSERVICE']._serialized_start=2869
+  _globals['_ENVSERVICE']._serialized_end=3461
 # @@protoc_insertion_point(module_scope)

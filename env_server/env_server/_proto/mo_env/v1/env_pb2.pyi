@@ -17,6 +17,12 @@ class DType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DTYPE_UINT8: _ClassVar[DType]
     DTYPE_BOOL: _ClassVar[DType]
 
+class ClosedForm(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    CLOSED_FORM_UNSPECIFIED: _ClassVar[ClosedForm]
+    CLOSED_FORM_NONE: _ClassVar[ClosedForm]
+    CLOSED_FORM_ACTION_NORM: _ClassVar[ClosedForm]
+
 class AutoresetMode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     AUTORESET_MODE_UNSPECIFIED: _ClassVar[AutoresetMode]
@@ -30,6 +36,9 @@ DTYPE_INT32: DType
 DTYPE_INT64: DType
 DTYPE_UINT8: DType
 DTYPE_BOOL: DType
+CLOSED_FORM_UNSPECIFIED: ClosedForm
+CLOSED_FORM_NONE: ClosedForm
+CLOSED_FORM_ACTION_NORM: ClosedForm
 AUTORESET_MODE_UNSPECIFIED: AutoresetMode
 AUTORESET_MODE_SAME_STEP: AutoresetMode
 AUTORESET_MODE_NEXT_STEP: AutoresetMode
@@ -98,18 +107,20 @@ class Space(_message.Message):
     def __init__(self, box: _Optional[_Union[BoxSpace, _Mapping]] = ..., discrete: _Optional[_Union[DiscreteSpace, _Mapping]] = ..., dict: _Optional[_Union[DictSpace, _Mapping]] = ...) -> None: ...
 
 class ObjectiveSpec(_message.Message):
-    __slots__ = ("name", "description", "min", "max", "scale")
+    __slots__ = ("name", "description", "min", "max", "scale", "closed_form")
     NAME_FIELD_NUMBER: _ClassVar[int]
     DESCRIPTION_FIELD_NUMBER: _ClassVar[int]
     MIN_FIELD_NUMBER: _ClassVar[int]
     MAX_FIELD_NUMBER: _ClassVar[int]
     SCALE_FIELD_NUMBER: _ClassVar[int]
+    CLOSED_FORM_FIELD_NUMBER: _ClassVar[int]
     name: str
     description: str
     min: float
     max: float
     scale: float
-    def __init__(self, name: _Optional[str] = ..., description: _Optional[str] = ..., min: _Optional[float] = ..., max: _Optional[float] = ..., scale: _Optional[float] = ...) -> None: ...
+    closed_form: ClosedForm
+    def __init__(self, name: _Optional[str] = ..., description: _Optional[str] = ..., min: _Optional[float] = ..., max: _Optional[float] = ..., scale: _Optional[float] = ..., closed_form: _Optional[_Union[ClosedForm, str]] = ...) -> None: ...
 
 class EnvSpec(_message.Message):
     __slots__ = ("env_id", "num_envs", "observation_space", "action_space", "objectives", "max_episode_steps", "autoreset_mode", "discount", "info_keys")
