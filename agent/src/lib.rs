@@ -40,6 +40,7 @@ pub mod plot;
 pub mod random;
 pub mod replay;
 pub mod run_config;
+pub mod run_name;
 pub mod schedule;
 pub mod solve;
 pub mod spec;
