@@ -15,7 +15,7 @@ use crate::env::pool::ServerPool;
 use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
 use crate::learner::latest_checkpoint;
-use crate::nets::{Acting, ActorPolicy};
+use crate::nets::{Acting, ActorPolicy, LearnerDims};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, make_options, mean_of, probe_spec};
 use crate::video::{Recorder, VideoOptions, VideoReport};
@@ -142,6 +142,46 @@ pub struct EvalReport {
     pub video: Option<VideoReport>,
 }
 
+/// The online policy of a checkpoint, on the CPU, with the run it belongs to.
+pub struct CheckpointPolicy {
+    /// The checkpoint directory read (`checkpoints/step_<n>`).
+    pub checkpoint: PathBuf,
+    /// The run's resolved `config.toml`.
+    pub config: TrainConfig,
+    /// The sizes the learner was built for.
+    pub dims: LearnerDims,
+    /// The policy, with the checkpoint's parameters.
+    pub policy: ActorPolicy,
+}
+
+/// Load the policy of a checkpoint: a run directory (its latest checkpoint) or one
+/// `checkpoints/step_<n>` directory of a run.
+pub fn load_checkpoint_policy(path: &Path) -> Result<CheckpointPolicy, TrainError> {
+    let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
+        (path.to_path_buf(), latest_checkpoint(path)?.0)
+    } else {
+        let run_dir = path
+            .parent()
+            .and_then(Path::parent)
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+        (run_dir, path.to_path_buf())
+    };
+    let config = TrainConfig::load(&run_dir.join("config.toml"))?;
+    let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
+    let dims = learner.dims().clone();
+    let mut policy = ActorPolicy::new(&config.learner.network, &dims, Device::Cpu);
+    policy
+        .load(&learner.policy_snapshot())
+        .map_err(|e| TrainError::Stopped(e.to_string()))?;
+    Ok(CheckpointPolicy {
+        checkpoint: ckpt,
+        config,
+        dims,
+        policy,
+    })
+}
+
 /// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
 /// `checkpoints/step_<n>` directory) with the deterministic policy, against
 /// `addresses` reached as `connection` says (not the run's own `env.connection`: the
@@ -153,29 +193,17 @@ pub async fn evaluate_checkpoint(
     episodes: usize,
     video: Option<(&Path, &VideoOptions)>,
 ) -> Result<EvalReport, TrainError> {
-    let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
-        (path.to_path_buf(), latest_checkpoint(path)?.0)
-    } else {
-        let run_dir = path
-            .parent()
-            .and_then(Path::parent)
-            .map(Path::to_path_buf)
-            .unwrap_or_default();
-        (run_dir, path.to_path_buf())
-    };
-    let cfg = TrainConfig::load(&run_dir.join("config.toml"))?;
-    let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
-    let dims = learner.dims().clone();
-    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
-    policy
-        .load(&learner.policy_snapshot())
-        .map_err(|e| TrainError::Stopped(e.to_string()))?;
+    let CheckpointPolicy {
+        checkpoint: ckpt,
+        config: cfg,
+        policy,
+        ..
+    } = load_checkpoint_policy(path)?;
     let client = ServerPool::connect(addresses, connection)
         .await?
         .first()
         .client;
     let spec = probe_spec(&client, &cfg).await?;
-    drop(learner);
     let (done, video) = match video {
         Some((out, options)) => {
             let (done, report) =

@@ -24,6 +24,7 @@
     reason = "run errors carry paths and sources; they are rare, not on a hot path"
 )]
 
+pub mod act;
 pub mod actor;
 pub mod algo;
 pub mod checkpoint;

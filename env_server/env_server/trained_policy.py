@@ -24,7 +24,19 @@ The networks are transcribed from agent/src/nets (mlp.rs, policy.rs, torso.rs):
 [-1, 1] and mapped linearly onto the action space's bounds where both are finite
 (`ActionBounds::to_env`), or an action index (add the space's `start` where it is not 0).
 Observations are flat float vectors [obs_dim] or [B, obs_dim], leaves in the order of
-the checkpoint's `dims.obs_leaves`. The mocap architecture (A.3) is not transcribed.
+the checkpoint's `dims.obs_leaves` (`flat_obs` flattens a RemoteEnv's Dict observation
+so). The mocap architecture (A.3) is not transcribed.
+
+`evaluate` runs a policy on RemoteEnv instances the way `agent eval` does, so the same
+checkpoint gives the returns `agent eval` prints:
+
+    from env_server.trained_policy import evaluate
+
+    episodes = evaluate(policy, "127.0.0.1:50051", "pendulum", episodes=10, seed=1_000_000, num_envs=8)
+    [e["episode_return"] for e in episodes]  # the server's vector returns
+
+`agent act --checkpoint RUN --observations OBS.npy --out ACTIONS.npy` writes the agent's
+own deterministic actions for given observations, to compare `act` with.
 """
 
 from __future__ import annotations
@@ -34,9 +46,12 @@ import math
 import pathlib
 from typing import Any
 
+import numpy as np
 import torch
 from safetensors.torch import load_file
 from torch import nn
+
+from env_server.client import RemoteEnv
 
 FORMAT_VERSION = 1  # agent/src/checkpoint.rs FORMAT_VERSION
 PREFIX = "policy/policy."  # the checkpoint's "policy/" and the VarStore's root "policy"
@@ -176,3 +191,53 @@ def _bounds(bounds: dict[str, Any] | None, dim: int) -> tuple[torch.Tensor, torc
 def _obs(obs: Any) -> tuple[torch.Tensor, bool]:
     x = torch.as_tensor(obs, dtype=torch.float32)
     return (x, True) if x.dim() == 2 else (x.unsqueeze(0), False)
+
+
+def flat_obs(obs: Any) -> np.ndarray:
+    """One observation as the agent's flat float32 vector: an array flattened, a Dict
+    observation's leaves depth-first in the order the server sent them (the order of
+    the checkpoint's `dims.obs_leaves`)."""
+    if isinstance(obs, dict):
+        return np.concatenate([flat_obs(v) for v in obs.values()])
+    return np.asarray(obs, np.float32).reshape(-1)
+
+
+def evaluate(
+    policy: GaussianPolicy | CategoricalPolicy,
+    address: str,
+    env_id: str,
+    episodes: int = 10,
+    *,
+    seed: int = 0,
+    num_envs: int = 1,
+    **kwargs: Any,
+) -> list[dict[str, Any]]:
+    """The server's records of the first `episodes` episodes that end when `policy` acts
+    deterministically on `num_envs` RemoteEnv instances stepped together; instance i is
+    first reset with the seed `seed + i` and again (unseeded) whenever its episode ends.
+
+    Each record has the vector `episode_return` and `discounted_return`, `length`,
+    `terminated`, `truncated`, and `env_index`; episodes ending at the same step come in
+    instance order. `agent eval --episodes N` on a run is this with num_envs =
+    min(N, the run's env.num_envs), seed = the run's seed + 1000000 and the run's
+    env.kwargs (agent/src/eval.rs). Connection keywords (tls_ca, token, ...) and env
+    kwargs go to RemoteEnv.
+    """
+    envs = [RemoteEnv(address, env_id, seed + i, **kwargs) for i in range(num_envs)]
+    try:
+        start = getattr(envs[0].action_space, "start", 0)  # a Discrete space's first action
+        obs = [flat_obs(env.reset()[0]) for env in envs]
+        done: list[dict[str, Any]] = []
+        while len(done) < episodes:
+            actions = policy.act(np.stack(obs)).numpy()
+            for i, env in enumerate(envs):
+                action = actions[i] + start if isinstance(policy, CategoricalPolicy) else actions[i]
+                ob, _, terminated, truncated, info = env.step(action)
+                if terminated or truncated:
+                    done.append({**info["server_episode"], "env_index": i})
+                    ob, _ = env.reset()
+                obs[i] = flat_obs(ob)
+        return done[:episodes]
+    finally:
+        for env in envs:
+            env.close()

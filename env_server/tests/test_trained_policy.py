@@ -14,7 +14,7 @@ import pytest
 import torch
 from safetensors.numpy import save_file
 
-from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, load_policy
+from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, flat_obs, load_policy
 
 
 def _network(layers: list[int], tanh_mean: bool = True, min_variance: float = 1e-4) -> dict:
@@ -181,3 +181,13 @@ def test_a_checkpoint_of_another_format_is_refused(tmp_path: pathlib.Path) -> No
     with pytest.raises(ValueError) as info:
         load_policy(ckpt)
     assert str(info.value) == f"{ckpt / 'state.json'}: format_version: expected 1, got 2"
+
+
+def test_flat_obs_keeps_the_order_the_server_sent_the_leaves_in() -> None:
+    """The agent concatenates leaves in message order (agent/src/env/mod.rs to_flat_f32);
+    remote.tree rebuilds a Dict observation in that order, not sorted by key."""
+    obs = {"z": np.array([1.0, 2.0]), "a": {"y": np.array([[3.0], [4.0]]), "b": np.float64(5.0)}}
+    flat = flat_obs(obs)
+    assert flat.dtype == np.float32
+    assert flat.tolist() == [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert flat_obs(np.arange(6).reshape(2, 3)).tolist() == [0, 1, 2, 3, 4, 5]
