@@ -35,7 +35,9 @@ fn install(root: &Path) -> String {
         format!("Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n"),
     )
     .unwrap();
-    let points = project["entry-points"]["env_server.envs"].as_table().unwrap();
+    let points = project["entry-points"]["env_server.envs"]
+        .as_table()
+        .unwrap();
     let lines: String = points
         .iter()
         .map(|(id, target)| format!("{id} = {}\n", target.as_str().unwrap()))
@@ -76,7 +78,10 @@ async fn the_example_plugin_trains_with_its_run_config() {
     )
     .await
     .expect("the example trains");
-    assert_eq!(s.objectives, vec!["reach".to_string(), "energy".to_string()]);
+    assert_eq!(
+        s.objectives,
+        vec!["reach".to_string(), "energy".to_string()]
+    );
     assert!(s.env_steps >= 600, "env steps {}", s.env_steps);
     assert!(s.learner_steps > 100, "learner steps {}", s.learner_steps);
     // 600 env steps (both instances together) hold 12 episodes of 50 steps.
@@ -86,7 +91,10 @@ async fn the_example_plugin_trains_with_its_run_config() {
     // so a 50-step return lies in [-90, 0] and [-50, 0].
     let bounds = [-90.0, -50.0];
     for (r, lo) in s.eval_return.iter().zip(bounds) {
-        assert!((lo..=0.0).contains(r), "evaluation return {r} outside [{lo}, 0]");
+        assert!(
+            (lo..=0.0).contains(r),
+            "evaluation return {r} outside [{lo}, 0]"
+        );
     }
     server.stop().await.unwrap();
 }
