@@ -4,7 +4,10 @@
 //! checkpoint in PyTorch and compares its actions (within 1e-5), then evaluates it
 //! through RemoteEnv with `agent eval`'s seeds and instances, which must give the
 //! episode returns `agent eval` reports. On DST (categorical) and pendulum (Gaussian,
-//! tanh mean, Box bounds [-2, 2]).
+//! tanh mean, Box bounds [-2, 2]); and A.3's mocap torso (encoder and latent) on an
+//! untrained learner's checkpoint, actions only.
+
+mod common;
 
 use std::path::Path;
 use std::process::Command;
@@ -12,7 +15,9 @@ use std::process::Command;
 use agent::env::connection::ConnectionConfig;
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
 use agent::eval::evaluate_checkpoint;
+use agent::learner::save_run_checkpoint;
 use agent::run_config::TrainConfig;
+use agent::schedule::Counters;
 use agent::train::{TrainOptions, train};
 use tch::Tensor;
 
@@ -54,20 +59,7 @@ async fn agent_and_python_agree(
     } else {
         std::fs::write(&obs_path, serde_json::to_string(obs).unwrap()).unwrap();
     }
-    let act = Command::new(env!("CARGO_BIN_EXE_agent"))
-        .args(["act", "--checkpoint"])
-        .arg(&run)
-        .arg("--observations")
-        .arg(&obs_path)
-        .arg("--out")
-        .arg(&actions_path)
-        .output()
-        .unwrap();
-    assert!(
-        act.status.success(),
-        "{}",
-        String::from_utf8_lossy(&act.stderr)
-    );
+    agent_act(&run, &obs_path, &actions_path);
 
     let episodes = 4;
     // agent/src/eval.rs: seeds disjoint from training's, at most env.num_envs instances.
@@ -150,4 +142,60 @@ async fn a_pendulum_policy_in_pytorch_acts_and_returns_as_the_agent() {
     cfg.run.runs_dir = runs.path().join("runs");
     // Pendulum observes (cos θ, sin θ, θ') with |θ'| <= 8: a wider range saturates tanh.
     agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy").await;
+}
+
+/// `agent act` (the real binary) on `obs`, writing `actions`.
+fn agent_act(run: &Path, obs: &Path, actions: &Path) {
+    let act = Command::new(env!("CARGO_BIN_EXE_agent"))
+        .args(["act", "--checkpoint"])
+        .arg(run)
+        .arg("--observations")
+        .arg(obs)
+        .arg("--out")
+        .arg(actions)
+        .output()
+        .unwrap();
+    assert!(
+        act.status.success(),
+        "{}",
+        String::from_utf8_lossy(&act.stderr)
+    );
+}
+
+#[test]
+fn a_mocap_policy_in_pytorch_acts_as_the_agent() {
+    let learner = common::movmpo_mocap_learner();
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    // The run's config.toml, which `agent act` builds the policy from: any run config
+    // with this learner's settings.
+    let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let mut cfg = TrainConfig::load(&smoke).unwrap();
+    cfg.learner = learner.config().clone();
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(run.join("config.toml"), toml::to_string(&cfg).unwrap()).unwrap();
+    save_run_checkpoint(&run, &learner, &Counters::default()).unwrap();
+    // Leaves walker/joints (1) and walker/reference_pos (2): proprioception is index 0.
+    let obs = observations(32, common::OBS as usize, 3.0);
+    let obs_path = dir.path().join("obs.json");
+    std::fs::write(&obs_path, serde_json::to_string(&obs).unwrap()).unwrap();
+    let actions_path = dir.path().join("actions.json");
+    agent_act(&run, &obs_path, &actions_path);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
+    let out = Command::new(default_python())
+        .arg(script)
+        .args([&run, &obs_path, &actions_path])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let python: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let diff = python["max_abs_diff"].as_f64().unwrap();
+    assert!(
+        diff <= 1e-5,
+        "Python's actions differ from the agent's by {diff}"
+    );
 }
