@@ -16,7 +16,7 @@ use crate::env::pool::ServerPool;
 use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
 use crate::learner::latest_checkpoint;
-use crate::nets::{Acting, ActorPolicy};
+use crate::nets::{Acting, ActorPolicy, LearnerDims};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, make_options, mean_of, probe_spec};
 use crate::video::{Recorder, VideoOptions, VideoReport};
@@ -143,17 +143,21 @@ pub struct EvalReport {
     pub video: Option<VideoReport>,
 }
 
-/// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
-/// `checkpoints/step_<n>` directory) with the deterministic policy, against
-/// `addresses` reached as `connection` says (not the run's own `env.connection`: the
-/// servers may differ), recording a video to `video`'s path when given.
-pub async fn evaluate_checkpoint(
-    path: &Path,
-    addresses: &[String],
-    connection: &ConnectionConfig,
-    episodes: usize,
-    video: Option<(&Path, &VideoOptions)>,
-) -> Result<EvalReport, TrainError> {
+/// The online policy of a checkpoint, on the CPU, with the run it belongs to.
+pub struct CheckpointPolicy {
+    /// The checkpoint directory read (`checkpoints/step_<n>`).
+    pub checkpoint: PathBuf,
+    /// The run's resolved `config.toml`.
+    pub config: TrainConfig,
+    /// The sizes the learner was built for.
+    pub dims: LearnerDims,
+    /// The policy, with the checkpoint's parameters.
+    pub policy: ActorPolicy,
+}
+
+/// Load the policy of a checkpoint: a run directory (its latest checkpoint) or one
+/// `checkpoints/step_<n>` directory of a run.
+pub fn load_checkpoint_policy(path: &Path) -> Result<CheckpointPolicy, TrainError> {
     let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
         (path.to_path_buf(), latest_checkpoint(path)?.0)
     } else {
@@ -166,31 +170,55 @@ pub async fn evaluate_checkpoint(
     };
     // A checkpoint folder outside a run folder has no config beside it: say so,
     // rather than read whatever config.toml the working directory holds.
-    let config = run_dir.join("config.toml");
-    if run_dir.as_os_str().is_empty() || !config.is_file() {
+    let config_path = run_dir.join("config.toml");
+    if run_dir.as_os_str().is_empty() || !config_path.is_file() {
         return Err(ConfigError::Invalid {
             field: "--checkpoint".into(),
             requirement: format!(
                 "a run folder, or a checkpoint in <run>/checkpoints/, whose run folder holds config.toml (looked for {})",
-                config.display()
+                config_path.display()
             ),
             got: path.display().to_string(),
         }
         .into());
     }
-    let cfg = TrainConfig::load(&config)?;
+    let config = TrainConfig::load(&config_path)?;
     let learner = Learner::load_checkpoint(&ckpt, Device::Cpu)?;
     let dims = learner.dims().clone();
-    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
+    let mut policy = ActorPolicy::new(&config.learner.network, &dims, Device::Cpu);
     policy
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
+    Ok(CheckpointPolicy {
+        checkpoint: ckpt,
+        config,
+        dims,
+        policy,
+    })
+}
+
+/// Evaluate a checkpoint (a run directory, meaning its latest checkpoint, or one
+/// `checkpoints/step_<n>` directory) with the deterministic policy, against
+/// `addresses` reached as `connection` says (not the run's own `env.connection`: the
+/// servers may differ), recording a video to `video`'s path when given.
+pub async fn evaluate_checkpoint(
+    path: &Path,
+    addresses: &[String],
+    connection: &ConnectionConfig,
+    episodes: usize,
+    video: Option<(&Path, &VideoOptions)>,
+) -> Result<EvalReport, TrainError> {
+    let CheckpointPolicy {
+        checkpoint: ckpt,
+        config: cfg,
+        policy,
+        ..
+    } = load_checkpoint_policy(path)?;
     let client = ServerPool::connect(addresses, connection)
         .await?
         .first()
         .client;
     let spec = probe_spec(&client, &cfg).await?;
-    drop(learner);
     let (done, video) = match video {
         Some((out, options)) => {
             let (done, report) =

@@ -24,6 +24,7 @@
     reason = "run errors carry paths and sources; they are rare, not on a hot path"
 )]
 
+pub mod act;
 pub mod actor;
 pub mod algo;
 pub mod checkpoint;
@@ -40,6 +41,7 @@ pub mod plot;
 pub mod random;
 pub mod replay;
 pub mod run_config;
+pub mod run_name;
 pub mod schedule;
 pub mod solve;
 pub mod spec;

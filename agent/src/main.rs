@@ -111,6 +111,24 @@ enum Command {
         #[command(flatten)]
         video_args: VideoArgs,
     },
+    /// Write a checkpoint's deterministic actions for the observations in a file.
+    ///
+    /// To check another implementation of the policy (e.g. env_server.trained_policy)
+    /// against the agent's. Observations: rows of the flattened observation, [B, obs_dim], as .npy or JSON
+    /// (`[[0.1, 2.0], ...]`). Actions: what the agent sends the env, the Gaussian's mean
+    /// clipped to [-1, 1] and mapped onto the Box bounds ([B, D] float32), or the most
+    /// likely index ([B] int64).
+    Act {
+        /// A run directory (its latest checkpoint) or one checkpoints/step_<n> directory.
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// The observations, a .npy or .json file.
+        #[arg(long, value_name = "FILE")]
+        observations: PathBuf,
+        /// Write the actions here (.npy or .json); default: print them as JSON.
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+    },
     /// List the envs a server offers, with their objectives.
     Envs {
         /// Server address host:port, https://host:port, dns:NAME:PORT or
@@ -344,6 +362,16 @@ async fn run() -> Result<()> {
             }
             let r = report?;
             cli::report::eval(&r);
+        }
+        Command::Act {
+            checkpoint,
+            observations,
+            out,
+        } => {
+            if let Some(json) = agent::act::act_on_file(&checkpoint, &observations, out.as_deref())?
+            {
+                println!("{json}");
+            }
         }
         Command::Envs { server, connection } => {
             let (client, local) = connect(server, connection).await?;

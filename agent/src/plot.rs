@@ -166,6 +166,8 @@ where
                 .configure_mesh()
                 .x_desc(figure.x_label.as_str())
                 .y_desc(figure.y_label.as_str())
+                .x_label_formatter(&|x| tick_label(*x))
+                .y_label_formatter(&|y| tick_label(*y))
                 .label_style(("sans-serif", 14))
                 .draw()?;
             for (i, s) in figure.series.iter().enumerate() {
@@ -230,6 +232,35 @@ where
         body!(builder.build_cartesian_2d(x0..x1, y0..y1)?);
     }
     Ok(Ok(()))
+}
+
+/// An axis tick as a person writes it: `200k`, `1.5M`, `-19`, `0.25`, `1e-5`.
+/// plotters' own labels print every f64 with a decimal point (`200000.0`). Up to three
+/// significant decimals are kept, so ticks 0.001 apart stay distinct below 1000.
+pub fn tick_label(v: f64) -> String {
+    if !v.is_finite() {
+        return v.to_string();
+    }
+    let a = v.abs();
+    if a != 0.0 && a < 1e-3 {
+        // `{:e}` writes the shortest form: 1e-5, 2.5e-4.
+        return format!("{:e}", (v * 1e12).round() / 1e12);
+    }
+    let (scaled, suffix) = [(1e12, "T"), (1e9, "G"), (1e6, "M"), (1e3, "k")]
+        .into_iter()
+        .find(|(unit, _)| a >= *unit)
+        .map_or((v, ""), |(unit, suffix)| (v / unit, suffix));
+    let mut text = format!("{scaled:.3}");
+    while text.ends_with('0') {
+        text.pop();
+    }
+    if text.ends_with('.') {
+        text.pop();
+    }
+    if text == "-0" {
+        text = "0".into();
+    }
+    text + suffix
 }
 
 /// matplotlib's "tab10" colours: distinct, and readable on white (unlike pure yellow).
@@ -322,6 +353,51 @@ mod tests {
         for text in ["DST front", "time", "treasure", "MO-MPO"] {
             assert!(svg.contains(text), "svg lacks {text}");
         }
+    }
+
+    #[test]
+    fn ticks_read_like_200k_and_1_5m() {
+        let cases = [
+            (0.0, "0"),
+            (-0.0, "0"),
+            (200_000.0, "200k"),
+            (1_500_000.0, "1.5M"),
+            (1_250_000.0, "1.25M"),
+            (12_500.0, "12.5k"),
+            (1e9, "1G"),
+            (-19.0, "-19"),
+            (999.0, "999"),
+            (0.25, "0.25"),
+            (0.30000000000000004, "0.3"), // a tick that is 3 × 0.1 in f64
+            (-2.5, "-2.5"),
+            (0.001, "0.001"),
+            (0.0005, "5e-4"),
+            (1e-5, "1e-5"),
+            (f64::INFINITY, "inf"),
+        ];
+        for (value, text) in cases {
+            assert_eq!(tick_label(value), text, "tick {value}");
+        }
+    }
+
+    #[test]
+    fn drawn_ticks_are_the_short_labels() {
+        let dir = tempfile::tempdir().unwrap();
+        let figure = Figure {
+            title: "t".into(),
+            x_label: "env steps".into(),
+            y_label: "return".into(),
+            series: vec![Series {
+                label: "s".into(),
+                points: vec![(0.0, 0.0), (2_000_000.0, 1.0)],
+                kind: SeriesKind::Line,
+            }],
+            log_x: false,
+        };
+        let files = save(&figure, &dir.path().join("f")).unwrap();
+        let svg = std::fs::read_to_string(&files[1]).unwrap();
+        assert!(svg.contains("\n1M\n"), "no 1M tick: {svg}");
+        assert!(!svg.contains("00000\n"), "a long tick label is left: {svg}");
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
     from env_server.trained_policy import load_policy
 
-    policy = load_policy("runs/pendulum__mompo__0__1700000000")  # its latest checkpoint
+    policy = load_policy("runs/pendulum__mompo__0__20261125-091122")  # its latest checkpoint
     action = policy.act(obs)  # the env action, deterministic: the mean / the most likely
 
 A checkpoint is a directory the agent writes (agent/src/checkpoint.rs): `state.json`
@@ -15,6 +15,9 @@ The networks are transcribed from agent/src/nets (mlp.rs, policy.rs, torso.rs):
 - torso: Linear -> LayerNorm (eps 1e-5) -> tanh, then Linear -> ELU per further size of
   `network.policy_layers` (parameters `torso.linear_0`, `torso.layer_norm`,
   `torso.linear_<i>`);
+- mocap torso (A.3): `encoder` (such an MLP of `encoder_layers`) on the observation,
+  `latent` Linear to the latent's mean and log std, and `torso` on [latent, the
+  proprioceptive leaves];
 - Gaussian head (continuous actions, D dims): Linear to [mean_raw, std_raw];
   mean = tanh(mean_raw) when `network.tanh_on_action_mean`, std = softplus(std_raw) +
   sqrt(`network.min_variance`);
@@ -24,7 +27,20 @@ The networks are transcribed from agent/src/nets (mlp.rs, policy.rs, torso.rs):
 [-1, 1] and mapped linearly onto the action space's bounds where both are finite
 (`ActionBounds::to_env`), or an action index (add the space's `start` where it is not 0).
 Observations are flat float vectors [obs_dim] or [B, obs_dim], leaves in the order of
-the checkpoint's `dims.obs_leaves`. The mocap architecture (A.3) is not transcribed.
+the checkpoint's `dims.obs_leaves` (`flat_obs` flattens a RemoteEnv's Dict observation
+so). A mocap policy acts on its latent's mean when deterministic, on a sampled latent
+otherwise.
+
+`evaluate` runs a policy on RemoteEnv instances the way `agent eval` does, so the same
+checkpoint gives the returns `agent eval` prints:
+
+    from env_server.trained_policy import evaluate
+
+    episodes = evaluate(policy, "127.0.0.1:50051", "pendulum", episodes=10, seed=1_000_000, num_envs=8)
+    [e["episode_return"] for e in episodes]  # the server's vector returns
+
+`agent act --checkpoint RUN --observations OBS.npy --out ACTIONS.npy` writes the agent's
+own deterministic actions for given observations, to compare `act` with.
 """
 
 from __future__ import annotations
@@ -34,9 +50,12 @@ import math
 import pathlib
 from typing import Any
 
+import numpy as np
 import torch
 from safetensors.torch import load_file
 from torch import nn
+
+from env_server.client import RemoteEnv
 
 FORMAT_VERSION = 1  # agent/src/checkpoint.rs FORMAT_VERSION
 PREFIX = "policy/policy."  # the checkpoint's "policy/" and the VarStore's root "policy"
@@ -61,14 +80,56 @@ class Torso(nn.Module):
         return h
 
 
-class GaussianPolicy(nn.Module):
+class _Policy(nn.Module):
+    """The torso every policy shares: `torso` on the observation (mlp), or A.3's mocap
+    encoder: `encoder` (an MLP as Torso) on the whole observation, `latent` (Linear) to
+    the latent's mean and log std (clamped to [-5, 2]), and `torso` on [z,
+    proprioception], the proprioception being the leaves whose name lacks
+    `reference_match` (agent/src/nets/torso.rs). Parameters sit at the policy's root,
+    as in the agent's VarStore."""
+
+    def _build_torso(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
+        arch = network.get("architecture", {"kind": "mlp"})
+        layers = network["policy_layers"]
+        self.latent_dim = 0
+        if arch["kind"] == "mlp":
+            self.torso = Torso(dims["obs_dim"], layers)
+            return
+        encoder_layers = arch.get("encoder_layers", [1024, 1024])  # the agent's defaults
+        self.latent_dim = arch.get("latent_dim", 60)
+        pattern = arch.get("reference_match", "reference")
+        proprio, start = [], 0
+        for leaf in dims.get("obs_leaves", []):
+            if pattern not in leaf["name"]:
+                proprio.extend(range(start, start + leaf["dim"]))
+            start += leaf["dim"]
+        self.encoder = Torso(dims["obs_dim"], encoder_layers)
+        self.latent = nn.Linear(encoder_layers[-1], 2 * self.latent_dim)
+        self.register_buffer("proprio_idx", torch.tensor(proprio, dtype=torch.int64), persistent=False)
+        self.torso = Torso(self.latent_dim + len(proprio), layers)
+
+    def features(self, obs: torch.Tensor, latent_noise: torch.Tensor | None = None) -> torch.Tensor:
+        """[B, obs_dim] -> [B, policy_layers[-1]]; a mocap torso uses the latent's mean
+        unless given the noise xi [B, latent_dim] (z = mean + std * xi)."""
+        if not self.latent_dim:
+            return self.torso(obs)
+        mean, log_std = self.latent(self.encoder(obs)).split(self.latent_dim, dim=-1)
+        z = mean if latent_noise is None else mean + log_std.clamp(-5.0, 2.0).exp() * latent_noise
+        return self.torso(torch.cat([z, obs.index_select(-1, self.proprio_idx)], dim=-1))
+
+    def _noise(self, x: torch.Tensor) -> torch.Tensor | None:
+        """Fresh latent noise for a sampled action (None without a latent)."""
+        return torch.randn(x.shape[0], self.latent_dim) if self.latent_dim else None
+
+
+class GaussianPolicy(_Policy):
     """A diagonal Gaussian over D action dims; `forward` gives its mean and std [B, D]."""
 
     def __init__(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
         super().__init__()
         layers = network["policy_layers"]
         self.action_dim = dims["action"]["continuous"]["dim"]
-        self.torso = Torso(dims["obs_dim"], layers)
+        self._build_torso(network, dims)
         self.head = nn.Linear(layers[-1], 2 * self.action_dim)
         self.tanh_mean = bool(network["tanh_on_action_mean"])
         self.min_std = math.sqrt(network["min_variance"])
@@ -77,38 +138,40 @@ class GaussianPolicy(nn.Module):
         self.register_buffer("action_center", torch.where(finite, (low + high) / 2, 0.0), persistent=False)
         self.register_buffer("action_scale", torch.where(finite, (high - low) / 2, 1.0), persistent=False)
 
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        mean_raw, std_raw = self.head(self.torso(obs)).split(self.action_dim, dim=-1)
+    def forward(self, obs: torch.Tensor, latent_noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        mean_raw, std_raw = self.head(self.features(obs, latent_noise)).split(self.action_dim, dim=-1)
         mean = torch.tanh(mean_raw) if self.tanh_mean else mean_raw
         return mean, nn.functional.softplus(std_raw) + self.min_std
 
     @torch.no_grad()
     def act(self, obs: Any, deterministic: bool = True) -> torch.Tensor:
-        """The env action [D] or [B, D]: the mean (or a sample), clipped and scaled."""
+        """The env action [D] or [B, D]: the mean (or a sample, with a sampled latent
+        for a mocap torso), clipped and scaled."""
         x, batched = _obs(obs)
-        mean, std = self(x)
+        mean, std = self(x) if deterministic else self(x, self._noise(x))
         action = mean if deterministic else mean + std * torch.randn_like(mean)
         env_action = action.clamp(-1.0, 1.0) * self.action_scale + self.action_center
         return env_action if batched else env_action[0]
 
 
-class CategoricalPolicy(nn.Module):
+class CategoricalPolicy(_Policy):
     """A categorical distribution over A actions; `forward` gives its logits [B, A]."""
 
     def __init__(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
         super().__init__()
         layers = network["policy_layers"]
-        self.torso = Torso(dims["obs_dim"], layers)
+        self._build_torso(network, dims)
         self.head = nn.Linear(layers[-1], dims["action"]["discrete"]["n"])
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.head(self.torso(obs))
+    def forward(self, obs: torch.Tensor, latent_noise: torch.Tensor | None = None) -> torch.Tensor:
+        return self.head(self.features(obs, latent_noise))
 
     @torch.no_grad()
     def act(self, obs: Any, deterministic: bool = True) -> torch.Tensor:
-        """The action index (int64), [] or [B]: the most likely, or a sample."""
+        """The action index (int64), [] or [B]: the most likely, or a sample (with a
+        sampled latent for a mocap torso)."""
         x, batched = _obs(obs)
-        logits = self(x)
+        logits = self(x) if deterministic else self(x, self._noise(x))
         if deterministic:
             action = logits.argmax(-1)
         else:
@@ -129,10 +192,9 @@ def load_policy(path: str | pathlib.Path) -> GaussianPolicy | CategoricalPolicy:
         )
     network, dims = state["config"]["network"], state["dims"]
     kind = network.get("architecture", {"kind": "mlp"})["kind"]
-    if kind != "mlp":
+    if kind not in ("mlp", "mocap"):
         raise ValueError(
-            f"{path / 'state.json'}: config.network.architecture.kind: expected 'mlp' (the "
-            f"mocap torso is not transcribed), got {kind!r}"
+            f"{path / 'state.json'}: config.network.architecture.kind: expected 'mlp' or 'mocap', got {kind!r}"
         )
     action = dims["action"]
     if "continuous" in action:
@@ -176,3 +238,53 @@ def _bounds(bounds: dict[str, Any] | None, dim: int) -> tuple[torch.Tensor, torc
 def _obs(obs: Any) -> tuple[torch.Tensor, bool]:
     x = torch.as_tensor(obs, dtype=torch.float32)
     return (x, True) if x.dim() == 2 else (x.unsqueeze(0), False)
+
+
+def flat_obs(obs: Any) -> np.ndarray:
+    """One observation as the agent's flat float32 vector: an array flattened, a Dict
+    observation's leaves depth-first in the order the server sent them (the order of
+    the checkpoint's `dims.obs_leaves`)."""
+    if isinstance(obs, dict):
+        return np.concatenate([flat_obs(v) for v in obs.values()])
+    return np.asarray(obs, np.float32).reshape(-1)
+
+
+def evaluate(
+    policy: GaussianPolicy | CategoricalPolicy,
+    address: str,
+    env_id: str,
+    episodes: int = 10,
+    *,
+    seed: int = 0,
+    num_envs: int = 1,
+    **kwargs: Any,
+) -> list[dict[str, Any]]:
+    """The server's records of the first `episodes` episodes that end when `policy` acts
+    deterministically on `num_envs` RemoteEnv instances stepped together; instance i is
+    first reset with the seed `seed + i` and again (unseeded) whenever its episode ends.
+
+    Each record has the vector `episode_return` and `discounted_return`, `length`,
+    `terminated`, `truncated`, and `env_index`; episodes ending at the same step come in
+    instance order. `agent eval --episodes N` on a run is this with num_envs =
+    min(N, the run's env.num_envs), seed = the run's seed + 1000000 and the run's
+    env.kwargs (agent/src/eval.rs). Connection keywords (tls_ca, token, ...) and env
+    kwargs go to RemoteEnv.
+    """
+    envs = [RemoteEnv(address, env_id, seed + i, **kwargs) for i in range(num_envs)]
+    try:
+        start = getattr(envs[0].action_space, "start", 0)  # a Discrete space's first action
+        obs = [flat_obs(env.reset()[0]) for env in envs]
+        done: list[dict[str, Any]] = []
+        while len(done) < episodes:
+            actions = policy.act(np.stack(obs)).numpy()
+            for i, env in enumerate(envs):
+                action = actions[i] + start if isinstance(policy, CategoricalPolicy) else actions[i]
+                ob, _, terminated, truncated, info = env.step(action)
+                if terminated or truncated:
+                    done.append({**info["server_episode"], "env_index": i})
+                    ob, _ = env.reset()
+                obs[i] = flat_obs(ob)
+        return done[:episodes]
+    finally:
+        for env in envs:
+            env.close()

@@ -338,13 +338,13 @@ def test_train_or_resume_starts_resumes_and_stops(tmp_path: pathlib.Path) -> Non
 
     assert _run_script(tmp_path, runs) == (0, new)
     # A pod that died before its first checkpoint left a directory: start afresh.
-    (job_runs / "humanoid-run__mompo__0__1700000000000").mkdir(parents=True)
+    (job_runs / "humanoid-run__mompo__0__20231114-221320").mkdir(parents=True)
     assert _run_script(tmp_path, runs) == (0, new)
     # The newest run with a checkpoint is resumed, with the same flags.
-    for stamp in ("1700000000001", "1700000000002"):
+    for stamp in ("20231114-221320-2", "20231115-080000"):
         (job_runs / f"humanoid-run__mompo__0__{stamp}" / "checkpoints").mkdir(parents=True)
         (job_runs / f"humanoid-run__mompo__0__{stamp}" / "checkpoints" / "latest.json").write_text("{}")
-    newest = job_runs / "humanoid-run__mompo__0__1700000000002"
+    newest = job_runs / "humanoid-run__mompo__0__20231115-080000"
     assert _run_script(tmp_path, runs) == (0, ["train", "--resume", str(newest), *server])
     assert _run_script(tmp_path, runs, LEARNER_DEVICE="cuda") == (
         0,

@@ -14,7 +14,7 @@ import pytest
 import torch
 from safetensors.numpy import save_file
 
-from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, load_policy
+from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, flat_obs, load_policy
 
 
 def _network(layers: list[int], tanh_mean: bool = True, min_variance: float = 1e-4) -> dict:
@@ -153,8 +153,8 @@ def test_categorical_policy_hand_derived(tmp_path: pathlib.Path) -> None:
             "policy/policy.head.weight: expected shape [2, 5], got [1, 5]",
         ),
         (
-            lambda p, n, s: n.update({"architecture": {"kind": "mocap"}}),
-            "config.network.architecture.kind: expected 'mlp'",
+            lambda p, n, s: n.update({"architecture": {"kind": "transformer"}}),
+            "config.network.architecture.kind: expected 'mlp' or 'mocap', got 'transformer'",
         ),
         (
             lambda p, n, s: s.update({"action": {"multi": {}}}),
@@ -181,3 +181,60 @@ def test_a_checkpoint_of_another_format_is_refused(tmp_path: pathlib.Path) -> No
     with pytest.raises(ValueError) as info:
         load_policy(ckpt)
     assert str(info.value) == f"{ckpt / 'state.json'}: format_version: expected 1, got 2"
+
+
+def test_flat_obs_keeps_the_order_the_server_sent_the_leaves_in() -> None:
+    """The agent concatenates leaves in message order (agent/src/env/mod.rs to_flat_f32);
+    remote.tree rebuilds a Dict observation in that order, not sorted by key."""
+    obs = {"z": np.array([1.0, 2.0]), "a": {"y": np.array([[3.0], [4.0]]), "b": np.float64(5.0)}}
+    flat = flat_obs(obs)
+    assert flat.dtype == np.float32
+    assert flat.tolist() == [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert flat_obs(np.arange(6).reshape(2, 3)).tolist() == [0, 1, 2, 3, 4, 5]
+
+
+def test_mocap_policy_matches_a_numpy_transcription(tmp_path: pathlib.Path) -> None:
+    """agent/src/nets/torso.rs MocapTorso: encoder MLP on the whole observation, latent
+    Linear to [mean, log std], the policy MLP on [z, proprioception], where the
+    proprioception is every leaf whose name lacks "reference" (here indices 0, 1, 5)."""
+    rng = np.random.default_rng(4)
+    leaves = [("walker/joints", 2), ("walker/reference_rel", 3), ("walker/velocity", 1)]
+    obs_dim, latent, encoder_layers, layers, d = 6, 3, [5, 4], [7], 2
+    encoder = _params(rng, obs_dim, encoder_layers, 1)
+    torso = _params(rng, latent + 3, layers, 2 * d)
+    params = {k.replace("torso.", "encoder."): v for k, v in encoder.items() if k.startswith("torso.")}
+    params |= {k: v for k, v in torso.items()}
+    params["latent.weight"] = rng.uniform(-1, 1, (2 * latent, encoder_layers[-1])).astype(np.float32)
+    params["latent.bias"] = rng.uniform(-1, 1, 2 * latent).astype(np.float32)
+    network = _network(layers)
+    network["architecture"] = {
+        "kind": "mocap",
+        "encoder_layers": encoder_layers,
+        "latent_dim": latent,
+        "reference_match": "reference",
+    }
+    dims = {
+        "obs_dim": obs_dim,
+        "action": {"continuous": {"dim": d}},
+        "reward_names": ["task"],
+        "obs_leaves": [{"name": n, "dim": k} for n, k in leaves],
+        "action_bounds": {"low": [-1.0, -1.0], "high": [1.0, 1.0]},
+    }
+    policy = load_policy(_write(tmp_path, params, network, dims))
+
+    obs = rng.normal(0, 2, (5, obs_dim)).astype(np.float32)
+    enc = {k.replace("encoder.", "torso."): v for k, v in params.items() if k.startswith("encoder.")}
+    h = _torso(enc, obs.astype(np.float64), len(encoder_layers))
+    stats = h @ params["latent.weight"].T + params["latent.bias"]
+    xi = rng.normal(0, 1, (5, latent)).astype(np.float32)
+    for noise in (None, xi):
+        z = stats[:, :latent] + (0 if noise is None else np.exp(np.clip(stats[:, latent:], -5, 2)) * noise)
+        x = np.concatenate([z, obs[:, [0, 1, 5]]], axis=1)
+        out = _torso(params, x, len(layers)) @ params["head.weight"].T + params["head.bias"]
+        got, _ = policy(torch.as_tensor(obs), None if noise is None else torch.as_tensor(noise))
+        np.testing.assert_allclose(got.detach().numpy(), np.tanh(out[:, :d]), rtol=1e-5, atol=1e-6)
+    # Deterministic: the latent's mean.
+    z = stats[:, :latent]
+    out = _torso(params, np.concatenate([z, obs[:, [0, 1, 5]]], axis=1), len(layers))
+    mean = np.tanh((out @ params["head.weight"].T + params["head.bias"])[:, :d])
+    np.testing.assert_allclose(policy.act(obs).numpy(), mean, rtol=1e-5, atol=1e-6)

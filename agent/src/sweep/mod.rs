@@ -3,13 +3,13 @@
 //! A sweep file names a base run config and a grid of settings. Every setting is
 //! trained with every seed, its final deterministic policy evaluated, and the
 //! undiscounted evaluation returns become the sweep's points. Written under
-//! `runs/sweep__<name>__<time>/`: `points.csv`, `front.csv`, `summary.json`
+//! `runs/sweep__<name>__<UTC time>/`: `points.csv`, `front.csv`, `summary.json`
 //! (hypervolume with the stated reference point, EUM), `front.{png,svg}` and, when
 //! configured, the Fig. 5-style plot of one objective's return against an ε ratio.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::time::{Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Instant, SystemTime};
 
 mod config;
 mod report;
@@ -24,6 +24,7 @@ use serde::Serialize;
 use crate::metrics::format_vector;
 use crate::pareto::{expected_utility, hypervolume, igd, non_dominated, simplex_weights};
 use crate::run_config::TrainConfig;
+use crate::run_name;
 use crate::train::{TrainError, TrainOptions, TrainSummary, train};
 use crate::video::{VideoOptions, VideoPlan};
 
@@ -93,18 +94,13 @@ pub async fn sweep(
     video: Option<&VideoOptions>,
 ) -> Result<SweepSummary, TrainError> {
     let started = Instant::now();
-    let time = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis())
-        .unwrap_or(0);
-    let dir = base
-        .run
-        .runs_dir
-        .join(format!("sweep__{}__{time}", sweep.name));
-    std::fs::create_dir_all(&dir).map_err(|source| TrainError::Io {
-        path: dir.clone(),
-        source,
-    })?;
+    let stem = format!("sweep__{}", sweep.name);
+    let dir = run_name::create_run_dir(&base.run.runs_dir, &stem, SystemTime::now()).map_err(
+        |source| TrainError::Io {
+            path: base.run.runs_dir.clone(),
+            source,
+        },
+    )?;
     let jobs: Vec<(BTreeMap<String, f64>, u64)> = sweep
         .settings()
         .into_iter()
@@ -125,7 +121,7 @@ pub async fn sweep(
         let (bar, dir) = (bar.clone(), dir.clone());
         async move {
             let mut cfg = apply(base, &setting, seed)?;
-            // One directory per job: concurrent runs may share seed and start time.
+            // One directory per job, so that each job's run is found by its index.
             cfg.run.runs_dir = dir.join("runs").join(format!("{i:03}"));
             if let Some(n) = sweep.total_env_steps {
                 cfg.run.total_env_steps = n;

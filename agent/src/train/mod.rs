@@ -1,6 +1,6 @@
 //! One training run: actors + learner + progress + checkpoints + final evaluation.
 //!
-//! `train` makes (or, with `resume`, reopens) `runs/<task>__<algo>__<seed>__<time>/`,
+//! `train` makes (or, with `resume`, reopens) `runs/<task>__<algo>__<seed>__<UTC time>/`,
 //! writes the resolved config there, runs the actors (tokio tasks) and the learner
 //! (an OS thread) under the schedule's rate limit, stops on the env-step budget,
 //! evaluates the deterministic policy, and writes `summary.json` and the learning

@@ -3,7 +3,7 @@
 //! and learner (replay layout, rate limit, counters, solve tracker).
 
 use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::time::SystemTime;
 
 use tch::Device;
 
@@ -14,6 +14,7 @@ use crate::learner::latest_checkpoint;
 use crate::nets::ActionKind;
 use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::run_config::TrainConfig;
+use crate::run_name;
 use crate::schedule::{Counters, Pace, Schedule};
 use crate::solve::SolveTracker;
 
@@ -48,8 +49,7 @@ pub(super) fn open_run(
             },
         });
     }
-    let dir = new_run_dir(cfg);
-    std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+    let dir = new_run_dir(cfg)?;
     let text = toml::to_string_pretty(cfg).map_err(|e| TrainError::Io {
         path: dir.join("config.toml"),
         source: std::io::Error::other(e),
@@ -112,11 +112,8 @@ pub(super) fn schedule_for(
     Ok(Schedule::new(replay, pace, counters))
 }
 
-fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
-    let time = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis())
-        .unwrap_or(0);
+/// A new folder `<runs_dir>/<task>__<algo>__<seed>__<UTC start time>` (see [`run_name`]).
+fn new_run_dir(cfg: &TrainConfig) -> Result<PathBuf, TrainError> {
     let task: String = cfg
         .env
         .id
@@ -129,7 +126,7 @@ fn new_run_dir(cfg: &TrainConfig) -> PathBuf {
             }
         })
         .collect();
-    cfg.run
-        .runs_dir
-        .join(format!("{task}__{}__{}__{time}", cfg.algo_name(), cfg.seed))
+    let stem = format!("{task}__{}__{}", cfg.algo_name(), cfg.seed);
+    run_name::create_run_dir(&cfg.run.runs_dir, &stem, SystemTime::now())
+        .map_err(io(&cfg.run.runs_dir))
 }

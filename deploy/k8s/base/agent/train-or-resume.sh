@@ -28,8 +28,9 @@ if [ -n "${LEARNER_DEVICE:-}" ]; then
   set -- "$@" --device "$LEARNER_DEVICE"
 fi
 
-# Run directories end in the start time in milliseconds (13 digits until 2286), so
-# within one Job (one config: one task, algo and seed) name order is start order.
+# Run directories end in the UTC start time, YYYYMMDD-HHMMSS (with -2, -3, ... for a
+# second run in the same second), so within one Job (one config: one task, algo and
+# seed) name order is start order.
 latest=""
 for dir in "$runs"/*/; do
   if [ -f "${dir}checkpoints/latest.json" ]; then

@@ -1,0 +1,201 @@
+//! A trained policy in PyTorch (`env_server.trained_policy`) acts as the agent does:
+//! a short run is trained, `agent act` (the real binary) writes its deterministic
+//! actions for fixed observations, and `agent/tests/python_policy.py` loads the same
+//! checkpoint in PyTorch and compares its actions (within 1e-5), then evaluates it
+//! through RemoteEnv with `agent eval`'s seeds and instances, which must give the
+//! episode returns `agent eval` reports. On DST (categorical) and pendulum (Gaussian,
+//! tanh mean, Box bounds [-2, 2]); and A.3's mocap torso (encoder and latent) on an
+//! untrained learner's checkpoint, actions only.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use agent::env::connection::ConnectionConfig;
+use agent::env::server_process::{LocalServer, ServerOptions, default_python};
+use agent::eval::evaluate_checkpoint;
+use agent::learner::save_run_checkpoint;
+use agent::run_config::TrainConfig;
+use agent::schedule::Counters;
+use agent::train::{TrainOptions, train};
+use tch::Tensor;
+
+/// `n` observations of `dim` values spread over [-scale, scale] (no two rows alike), so
+/// the network's tanh, LayerNorm and clipping see more than one regime.
+fn observations(n: usize, dim: usize, scale: f64) -> Vec<Vec<f32>> {
+    (0..n)
+        .map(|i| {
+            (0..dim)
+                .map(|j| (scale * (1.7 * i as f64 + 0.9 * j as f64 + 0.3).sin()) as f32)
+                .collect()
+        })
+        .collect()
+}
+
+/// Train `cfg` on `server`, have the agent and Python act on `obs` (written as
+/// `obs.<ext>`), and evaluate through both; asserts what the module doc says.
+async fn agent_and_python_agree(
+    cfg: TrainConfig,
+    server: &LocalServer,
+    obs: &[Vec<f32>],
+    ext: &str,
+) {
+    let address = server.address().to_string();
+    let (cfg_seed, env_id, num_envs) = (cfg.seed, cfg.env.id.clone(), cfg.env.num_envs);
+    let run = train(cfg, std::slice::from_ref(&address), TrainOptions::default())
+        .await
+        .unwrap()
+        .run_dir;
+    let dir = run.parent().unwrap();
+    let obs_path = dir.join(format!("obs.{ext}"));
+    let actions_path = dir.join(format!("actions.{ext}"));
+    if ext == "npy" {
+        let flat: Vec<f32> = obs.iter().flatten().copied().collect();
+        Tensor::from_slice(&flat)
+            .view([obs.len() as i64, obs[0].len() as i64])
+            .write_npy(&obs_path)
+            .unwrap();
+    } else {
+        std::fs::write(&obs_path, serde_json::to_string(obs).unwrap()).unwrap();
+    }
+    agent_act(&run, &obs_path, &actions_path);
+
+    let episodes = 4;
+    // agent/src/eval.rs: seeds disjoint from training's, at most env.num_envs instances.
+    let seed = cfg_seed + 1_000_000;
+    let num_envs = episodes.clamp(1, num_envs);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
+    let out = Command::new(default_python())
+        .arg(script)
+        .arg(&run)
+        .arg(&obs_path)
+        .arg(&actions_path)
+        .args([&address, &env_id])
+        .args([episodes, seed as usize, num_envs].map(|v| v.to_string()))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let python: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let diff = python["max_abs_diff"].as_f64().unwrap();
+    assert!(
+        diff <= 1e-5,
+        "Python's actions differ from the agent's by {diff}"
+    );
+
+    let report = evaluate_checkpoint(
+        &run,
+        &[address],
+        &ConnectionConfig::default(),
+        episodes,
+        None,
+    )
+    .await
+    .unwrap();
+    let theirs = python["episodes"].as_array().unwrap();
+    assert_eq!(theirs.len(), report.episodes.len());
+    for (agent, python) in report.episodes.iter().zip(theirs) {
+        assert_eq!(python["env_index"], agent.env_index);
+        assert_eq!(python["length"], agent.length);
+        let returns: Vec<f64> = serde_json::from_value(python["episode_return"].clone()).unwrap();
+        for (p, a) in returns.iter().zip(&agent.episode_return) {
+            // The same actions in the same seeded envs: the same returns, up to float
+            // noise in the env's sums.
+            assert!(
+                (p - a).abs() <= 1e-6 * a.abs().max(1.0),
+                "episode returns: agent {:?}, Python {returns:?}",
+                agent.episode_return
+            );
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dst_policy_in_pytorch_acts_and_returns_as_the_agent() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let mut cfg = TrainConfig::load_with(&path, &["run.total_env_steps=2000".into()]).unwrap();
+    cfg.run.runs_dir = runs.path().join("runs");
+    // DST observes the submarine's (row, column) in a 11 x 10 grid.
+    agent_and_python_agree(cfg, &server, &observations(64, 2, 10.0), "json").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pendulum_policy_in_pytorch_acts_and_returns_as_the_agent() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum.toml");
+    let mut cfg = TrainConfig::load_with(
+        &path,
+        &[
+            "run.total_env_steps=1600".into(),
+            "run.min_replay_transitions=400".into(),
+            "run.eval_episodes=1".into(),
+        ],
+    )
+    .unwrap();
+    cfg.run.runs_dir = runs.path().join("runs");
+    // Pendulum observes (cos θ, sin θ, θ') with |θ'| <= 8: a wider range saturates tanh.
+    agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy").await;
+}
+
+/// `agent act` (the real binary) on `obs`, writing `actions`.
+fn agent_act(run: &Path, obs: &Path, actions: &Path) {
+    let act = Command::new(env!("CARGO_BIN_EXE_agent"))
+        .args(["act", "--checkpoint"])
+        .arg(run)
+        .arg("--observations")
+        .arg(obs)
+        .arg("--out")
+        .arg(actions)
+        .output()
+        .unwrap();
+    assert!(
+        act.status.success(),
+        "{}",
+        String::from_utf8_lossy(&act.stderr)
+    );
+}
+
+#[test]
+fn a_mocap_policy_in_pytorch_acts_as_the_agent() {
+    let learner = common::movmpo_mocap_learner();
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    // The run's config.toml, which `agent act` builds the policy from: any run config
+    // with this learner's settings.
+    let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+    let mut cfg = TrainConfig::load(&smoke).unwrap();
+    cfg.learner = learner.config().clone();
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(run.join("config.toml"), toml::to_string(&cfg).unwrap()).unwrap();
+    save_run_checkpoint(&run, &learner, &Counters::default()).unwrap();
+    // Leaves walker/joints (1) and walker/reference_pos (2): proprioception is index 0.
+    let obs = observations(32, common::OBS as usize, 3.0);
+    let obs_path = dir.path().join("obs.json");
+    std::fs::write(&obs_path, serde_json::to_string(&obs).unwrap()).unwrap();
+    let actions_path = dir.path().join("actions.json");
+    agent_act(&run, &obs_path, &actions_path);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
+    let out = Command::new(default_python())
+        .arg(script)
+        .args([&run, &obs_path, &actions_path])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let python: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let diff = python["max_abs_diff"].as_f64().unwrap();
+    assert!(
+        diff <= 1e-5,
+        "Python's actions differ from the agent's by {diff}"
+    );
+}
