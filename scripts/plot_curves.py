@@ -3,13 +3,15 @@
 
     python scripts/plot_curves.py --out docs/results/reach-energy.png \
         --title "reach-energy, configs/mompo/small-continuous.toml" \
-        --bucket 1000 RUN_DIR [RUN_DIR ...]
+        --bucket 1000 RUN_DIR [RUN_DIR ...] [--labels "a,b,..."]
 
 Each RUN_DIR is an agent run directory (or a folder holding exactly one), and its
 episodes.csv is read: every training episode's undiscounted vector return and the env
 step at which it ended. A curve point is the mean return of the episodes that ended in
 one env-step bucket (bucket B: env steps in ((i - 1) B, i B]), plotted at i B. One line
-per run (labelled by the seed in the directory name), one panel per objective.
+per run (labelled by the seed in the directory name, or --labels), one panel per
+objective. With --field critic_loss (or temperature, ...) the curve is instead the mean
+of that learner.jsonl field over the records in each bucket.
 
 Only the standard library and Pillow (which the venv has; matplotlib it has not) are
 used, so the figure is drawn by hand: axes, ticks, a legend, and polylines.
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import pathlib
 
@@ -53,6 +56,28 @@ def curves(path: pathlib.Path, bucket: int) -> tuple[list[str], list[tuple[int, 
     return names, [(i * bucket, [v / counts[i] for v in sums[i]]) for i in sorted(sums)]
 
 
+def learner_curves(path: pathlib.Path, bucket: int, field: str) -> tuple[list[str], list[tuple[int, list[float]]]]:
+    """Like curves(), for one per-objective field of learner.jsonl (e.g. critic_loss):
+    the mean of the records whose env step falls in each bucket."""
+    with open(path / "episodes.csv", newline="") as f:
+        header = next(csv.reader(f))
+    names = [k.removeprefix("return_") for k in header if k.startswith("return_")]
+    sums: dict[int, list[float]] = {}
+    counts: dict[int, int] = {}
+    with open(path / "learner.jsonl") as f:
+        for line in f:
+            r = json.loads(line)
+            i = (int(r["env_steps"]) + bucket - 1) // bucket
+            s = sums.setdefault(i, [0.0] * len(r[field]))
+            for j, v in enumerate(r[field]):
+                s[j] += float(v)
+            counts[i] = counts.get(i, 0) + 1
+    n = len(next(iter(sums.values())))
+    if n != len(names):
+        names = [str(j) for j in range(n)]
+    return names, [(i * bucket, [v / counts[i] for v in sums[i]]) for i in sorted(sums)]
+
+
 def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     """About n round tick values covering [lo, hi]."""
     if hi <= lo:
@@ -76,15 +101,21 @@ def main() -> None:
     ap.add_argument("--out", type=pathlib.Path, required=True)
     ap.add_argument("--title", default="")
     ap.add_argument("--bucket", type=int, default=1000, help="env steps per curve point")
+    ap.add_argument("--field", default="", help="plot this learner.jsonl field (e.g. critic_loss) instead of returns")
+    ap.add_argument("--logy", action="store_true", help="logarithmic y axis (positive values only)")
+    ap.add_argument("--labels", default="", help="comma-separated legend labels (default: the seeds)")
     args = ap.parse_args()
+    labels = args.labels.split(",") if args.labels else []
+    if labels and len(labels) != len(args.runs):
+        raise SystemExit(f"--labels: {len(labels)} labels for {len(args.runs)} runs")
 
     runs = []
     for p in args.runs:
         d = run_dir(p)
         parts = d.name.split("__")
         seed = parts[2] if len(parts) >= 3 else d.name
-        names, pts = curves(d, args.bucket)
-        runs.append((f"seed {seed}", names, pts))
+        names, pts = learner_curves(d, args.bucket, args.field) if args.field else curves(d, args.bucket)
+        runs.append((labels[len(runs)] if labels else f"seed {seed}", names, pts))
     names = runs[0][1]
     xmax = max(pts[-1][0] for _, _, pts in runs)
 
@@ -97,30 +128,34 @@ def main() -> None:
     for j, name in enumerate(names):
         x0 = ml + j * (pw + ml + mr)
         ys = [v[j] for _, _, pts in runs for _, v in pts]
+        if args.logy:
+            ys = [math.log10(max(y, 1e-12)) for y in ys]
         lo, hi = min(ys), max(ys)
         pad = 0.05 * (hi - lo or 1.0)
         lo, hi = lo - pad, hi + pad
+        ty = (lambda y: math.log10(max(y, 1e-12))) if args.logy else (lambda y: y)
 
         def px(x: float, y: float, x0: int = x0, lo: float = lo, hi: float = hi) -> tuple[float, float]:
             return x0 + pw * x / xmax, mt + ph * (1 - (y - lo) / (hi - lo))
 
-        for t in nice_ticks(lo, hi):
+        yticks = range(math.ceil(lo), math.floor(hi) + 1) if args.logy else nice_ticks(lo, hi)
+        for t in yticks:
             _, y = px(0, t)
             d.line([(x0, y), (x0 + pw, y)], fill=(230, 230, 230))
-            d.text((x0 - 6, y), label(t), fill="black", font=font, anchor="rm")
+            d.text((x0 - 6, y), f"1e{t}" if args.logy else label(t), fill="black", font=font, anchor="rm")
         for t in nice_ticks(0, xmax):
             x, _ = px(t, lo)
             d.line([(x, mt), (x, mt + ph)], fill=(230, 230, 230))
             d.text((x, mt + ph + 6), label(t) if t < 1000 else f"{t / 1000:g}k", fill="black", font=font, anchor="mt")
         d.rectangle([x0, mt, x0 + pw, mt + ph], outline="black")
-        d.text((x0 + pw / 2, mt - 14), f"training return: {name}", fill="black", font=font, anchor="mm")
-        d.text((x0 + pw / 2, mt + ph + 24), f"env steps (mean of episodes ending in each {args.bucket}-step bucket)",
+        d.text((x0 + pw / 2, mt - 14), f"{args.field or 'training return'}: {name}", fill="black", font=font, anchor="mm")
+        d.text((x0 + pw / 2, mt + ph + 24), f"env steps (mean of {'records' if args.field else 'episodes ending'} in each {args.bucket}-step bucket)",
                fill="black", font=font, anchor="mt")
         for k, (_, _, pts) in enumerate(runs):
-            line = [px(x, v[j]) for x, v in pts]
+            line = [px(x, ty(v[j])) for x, v in pts]
             d.line(line, fill=COLOURS[k % len(COLOURS)], width=2)
     for k, (lab, _, _) in enumerate(runs):
-        x = ml + 10 + k * 80
+        x = ml + 10 + sum(30 + 6 * len(lab) for lab, _, _ in runs[:k])
         y = height - 14
         d.line([(x, y), (x + 18, y)], fill=COLOURS[k % len(COLOURS)], width=3)
         d.text((x + 22, y), lab, fill="black", font=font, anchor="lm")
