@@ -103,6 +103,7 @@ def main() -> None:
     ap.add_argument("--bucket", type=int, default=1000, help="env steps per curve point")
     ap.add_argument("--field", default="", help="plot this learner.jsonl field (e.g. critic_loss) instead of returns")
     ap.add_argument("--logy", action="store_true", help="logarithmic y axis (positive values only)")
+    ap.add_argument("--names", default="", help="comma-separated panel names (default: the objective names)")
     ap.add_argument("--labels", default="", help="comma-separated legend labels (default: the seeds)")
     args = ap.parse_args()
     labels = args.labels.split(",") if args.labels else []
@@ -117,6 +118,8 @@ def main() -> None:
         names, pts = learner_curves(d, args.bucket, args.field) if args.field else curves(d, args.bucket)
         runs.append((labels[len(runs)] if labels else f"seed {seed}", names, pts))
     names = runs[0][1]
+    if args.names:
+        names = [f"{n} ({o})" for n, o in zip(args.names.split(","), names, strict=True)]
     xmax = max(pts[-1][0] for _, _, pts in runs)
 
     pw, ph, ml, mr, mt, mb = 420, 280, 62, 14, 46, 44
