@@ -151,9 +151,16 @@ def main() -> None:
             d.line([(x, mt), (x, mt + ph)], fill=(230, 230, 230))
             d.text((x, mt + ph + 6), label(t) if t < 1000 else f"{t / 1000:g}k", fill="black", font=font, anchor="mt")
         d.rectangle([x0, mt, x0 + pw, mt + ph], outline="black")
-        d.text((x0 + pw / 2, mt - 14), f"{args.field or 'training return'}: {name}", fill="black", font=font, anchor="mm")
-        d.text((x0 + pw / 2, mt + ph + 24), f"env steps (mean of {'records' if args.field else 'episodes ending'} in each {args.bucket}-step bucket)",
-               fill="black", font=font, anchor="mt")
+        d.text(
+            (x0 + pw / 2, mt - 14), f"{args.field or 'training return'}: {name}", fill="black", font=font, anchor="mm"
+        )
+        d.text(
+            (x0 + pw / 2, mt + ph + 24),
+            f"env steps (mean of {'records' if args.field else 'episodes ending'} in each {args.bucket}-step bucket)",
+            fill="black",
+            font=font,
+            anchor="mt",
+        )
         for k, (_, _, pts) in enumerate(runs):
             line = [px(x, ty(v[j])) for x, v in pts]
             d.line(line, fill=COLOURS[k % len(COLOURS)], width=2)
