@@ -29,12 +29,11 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium
-import numpy as np
 
 from env_server import spaces
 from env_server.errors import Cancelled, ConstructorError, EnvServerError, Internal, InvalidArgument, quote
 from env_server.registry import EnvEntry, construct
-from env_server.task import ClosedForm, Objective, StepOutcome, Task
+from env_server.task import ClosedForm, Objective, StepOutcome, Task, action_norm_bounds
 
 log = logging.getLogger(__name__)
 
@@ -519,12 +518,7 @@ def _check_action_norm(env_id: str, objective: Objective, action_space: gymnasiu
     where = f"env '{env_id}' objective {objective.name!r} (closed_form = action_norm)"
     if not isinstance(action_space, gymnasium.spaces.Box):
         raise Internal(f"{where}: expected a Box action space, got {action_space}")
-    low = np.abs(np.asarray(action_space.low, dtype=np.float64)).ravel()
-    high = np.abs(np.asarray(action_space.high, dtype=np.float64)).ravel()
-    holds_zero = (np.asarray(action_space.low) <= 0).ravel() & (np.asarray(action_space.high) >= 0).ravel()
-    largest = math.sqrt(float(np.sum(np.maximum(low, high) ** 2)))
-    smallest = math.sqrt(float(np.sum(np.where(holds_zero, 0.0, np.minimum(low, high)) ** 2)))
-    want = (-objective.scale * largest + 0.0, -objective.scale * smallest + 0.0)  # + 0.0: no -0
+    want = tuple(objective.scale * bound + 0.0 for bound in action_norm_bounds(action_space))  # + 0.0: no -0
 
     def same(a: float, b: float) -> bool:
         return a == b or math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9)

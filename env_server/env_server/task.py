@@ -50,6 +50,16 @@ class ClosedForm(enum.Enum):
     UNDECLARED = "undeclared"
 
 
+def action_norm_bounds(action_space: gymnasium.spaces.Box) -> tuple[float, float]:
+    """(min, max) of -||a||_2 over a Box: the bounds an `ACTION_NORM` objective declares."""
+    low, high = np.asarray(action_space.low, np.float64).ravel(), np.asarray(action_space.high, np.float64).ravel()
+    largest = np.maximum(np.abs(low), np.abs(high))
+    holds_zero = (low <= 0) & (high >= 0)
+    nearest = np.where(holds_zero, 0.0, np.minimum(np.abs(low), np.abs(high)))
+    # + 0.0: a Box that holds zero gives max 0, not -0.
+    return -math.sqrt(float(np.sum(largest**2))) + 0.0, -math.sqrt(float(np.sum(nearest**2))) + 0.0
+
+
 @dataclasses.dataclass(frozen=True)
 class Objective:
     """One entry of the vector reward."""

@@ -1,16 +1,22 @@
-"""`gym:<id>`: any gymnasium environment as a Task with one objective, "reward"."""
+"""`gym:<id>`: any gymnasium environment as a Task with one objective, "reward", and with
+`action_norm_objective = true` a second, "action_norm" = -||a||_2 of the action sent,
+declared a closed form so that a learner may compute it instead of learning it."""
 
 from __future__ import annotations
 
 import inspect
 from typing import Any
 
+import gymnasium
 import numpy as np
 
 from env_server import gl, render
-from env_server.errors import FailedPrecondition
+from env_server.errors import FailedPrecondition, InvalidArgument, quote
 from env_server.kwarg_types import check_kwarg_types
-from env_server.task import Objective, StepOutcome, Task
+from env_server.task import ClosedForm, Objective, StepOutcome, Task, action_norm_bounds
+
+#: The gym: kwarg that adds the "action_norm" objective (handled here, not by gymnasium).
+ACTION_NORM_OBJECTIVE = "action_norm_objective"
 
 
 def with_rgb_array(gym_id: str, kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -75,8 +81,13 @@ class GymTask(Task):
     objectives = (Objective("reward", "the env's scalar reward"),)
 
     def __init__(self, gym_id: str, **kwargs: Any) -> None:
-        import gymnasium
-
+        action_norm = kwargs.pop(ACTION_NORM_OBJECTIVE, False)
+        if not isinstance(action_norm, bool):
+            raise InvalidArgument(
+                f"kwargs_json.{ACTION_NORM_OBJECTIVE}: expected true or false, got {quote(action_norm)}"
+            )
+        if action_norm and any(o.name == "action_norm" for o in type(self).objectives):
+            raise InvalidArgument(f"kwargs_json.{ACTION_NORM_OBJECTIVE}: this env already has an action_norm objective")
         check_gym_kwarg_types(gym_id, kwargs)
         self.gym_id = gym_id
         self.env = gymnasium.make(gym_id, **with_rgb_array(gym_id, kwargs))
@@ -85,7 +96,22 @@ class GymTask(Task):
         spec = self.env.spec
         self.max_episode_steps = spec.max_episode_steps if spec is not None else None
         self.render_fps = float(self.env.metadata.get("render_fps") or 0.0)
-        self._reward = np.zeros(1, np.float32)
+        self._action_norm = action_norm
+        if action_norm:
+            self.objectives = (*type(self).objectives, self._action_norm_objective())
+        self._reward = np.zeros(len(self.objectives), np.float32)
+
+    def _action_norm_objective(self) -> Objective:
+        space = self.action_space
+        finite = isinstance(space, gymnasium.spaces.Box) and np.all(np.isfinite(space.low) & np.isfinite(space.high))
+        if not finite:
+            self.env.close()
+            raise InvalidArgument(
+                f"kwargs_json.{ACTION_NORM_OBJECTIVE}: expected an env with a bounded Box action space, "
+                f"gym:{self.gym_id} has {space}"
+            )
+        low, high = action_norm_bounds(space)
+        return Objective("action_norm", "-||a||_2 of the action sent", low, high, closed_form=ClosedForm.ACTION_NORM)
 
     def reset(self, seed: int | None = None) -> tuple[Any, dict[str, Any]]:
         return self.env.reset(seed=seed)
@@ -93,6 +119,8 @@ class GymTask(Task):
     def step(self, action: Any) -> StepOutcome:
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._reward[0] = reward
+        if self._action_norm:
+            self._reward[-1] = -np.linalg.norm(np.asarray(action, np.float64).ravel())
         return StepOutcome(obs, self._reward, bool(terminated), bool(truncated), info)
 
     def render(self, width: int, height: int, camera: str) -> np.ndarray:

@@ -35,7 +35,6 @@ class Pendulum(GymTask):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("Pendulum-v1", **kwargs)
-        self._reward = self._reward.repeat(2)
 
     def step(self, action: Any) -> StepOutcome:
         out = super().step(action)
