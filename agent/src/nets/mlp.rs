@@ -239,12 +239,16 @@ impl LayerNormMlp {
 mod tests {
     use super::super::heads::HeadStack;
     use super::*;
+    use crate::random::{Purpose, StreamKey};
     use tch::{Device, Kind};
 
     const P: i64 = 3;
 
+    /// Test inputs from a keyed stream, not libtorch's shared generator.
     fn randn(shape: &[i64]) -> Tensor {
-        Tensor::randn(shape, (Kind::Float, Device::Cpu))
+        StreamKey::new(0, Purpose::LearnerActing, 0)
+            .at(shape.iter().product::<i64>() as u64)
+            .normal(shape, Device::Cpu)
     }
 
     /// Member `p` of every stacked variable of `population`, copied from `single`'s
@@ -355,7 +359,7 @@ mod tests {
     fn shapes_and_first_layer_is_bounded() {
         let vs = nn::VarStore::new(Device::Cpu);
         let mlp = LayerNormMlp::new(&(vs.root() / "torso"), 5, &[8]);
-        let y = mlp.forward(&(Tensor::randn([3, 5], (Kind::Float, Device::Cpu)) * 100.0));
+        let y = mlp.forward(&(randn(&[3, 5]) * 100.0));
         assert_eq!(y.size(), vec![3, 8]);
         // With one layer the output is tanh(LayerNorm(.)), so strictly inside (-1, 1).
         assert!(y.abs().max().double_value(&[]) < 1.0);

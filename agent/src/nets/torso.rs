@@ -130,6 +130,7 @@ impl Torso {
 mod tests {
     use super::*;
     use crate::nets::{ActionKind, ObsLeaf};
+    use crate::random::{Purpose, StreamKey};
     use tch::Device;
 
     #[test]
@@ -161,9 +162,10 @@ mod tests {
         };
         let vs = nn::VarStore::new(Device::Cpu);
         let torso = Torso::new(&vs.root(), &cfg, &dims);
-        let obs = Tensor::randn([3, 5], (Kind::Float, Device::Cpu));
+        let mut stream = StreamKey::new(0, Purpose::LatentNoise, 0).at(0);
+        let obs = stream.normal(&[3, 5], Device::Cpu);
         assert_eq!(torso.latent_dim(), Some(4));
-        let xi = Tensor::randn([3, 4], (Kind::Float, Device::Cpu));
+        let xi = stream.normal(&[3, 4], Device::Cpu);
         assert_eq!(xi.size(), vec![3, 4]);
         let a = torso.forward(&obs, Some(&xi));
         assert_eq!(a.size(), vec![3, 8]);
