@@ -14,6 +14,7 @@ use std::time::Duration;
 use tch::{Kind, Tensor};
 use tokio::sync::watch;
 
+use crate::algo::preferences::PreferenceGrid;
 use crate::env::grpc::{EnvClient, RemoteEnv, RetryPolicy};
 use crate::env::pool::{Assignment, ServerPool};
 use crate::env::{Env, HostTensor, MakeOptions};
@@ -52,6 +53,46 @@ pub struct ActorContext {
     pub files: Arc<RunFiles>,
     /// Stop after this many env steps in total.
     pub total_env_steps: u64,
+    /// ε-conditioned runs: the grid every episode draws its preference from, and the
+    /// actor's stream for those draws (`random::Purpose::ActingPreference`).
+    pub preferences: Option<(Arc<PreferenceGrid>, StreamKey)>,
+}
+
+/// The preference each instance of an ε-conditioned actor acts with in its current
+/// episode; observations are passed on (to the policy and the replay) with that
+/// preference's features appended.
+struct Conditioner {
+    grid: Arc<PreferenceGrid>,
+    draws: StreamKey,
+    /// Grid point of each instance's current episode.
+    current: Vec<usize>,
+}
+
+impl Conditioner {
+    /// New preferences for every instance (a new session); stream counter
+    /// `2 * acts + 1`, apart from the per-step draws' `2 * acts`.
+    fn redraw_all(&mut self, acts: u64) {
+        let mut stream = self.draws.at(2 * acts + 1);
+        for g in &mut self.current {
+            *g = self.grid.draw(&mut stream);
+        }
+    }
+}
+
+/// Env observation rows `[R, O_env]` as the policy and the replay see them: unchanged,
+/// or with the features of `rows`' preferences appended (`None`: every instance's).
+fn observed(cond: &Option<Conditioner>, obs: Vec<f32>, rows: Option<&[usize]>) -> Vec<f32> {
+    match cond {
+        None => obs,
+        Some(c) => {
+            let prefs: Vec<usize> = match rows {
+                None => c.current.clone(),
+                Some(rows) => rows.iter().map(|&i| c.current[i]).collect(),
+            };
+            let width = obs.len().checked_div(prefs.len()).unwrap_or(0);
+            c.grid.append(&obs, width, &prefs)
+        }
+    }
 }
 
 /// Maps policy actions to env actions: continuous ones clipped to [-1, 1] and mapped
@@ -124,13 +165,21 @@ struct Sessions<'a> {
     total_env_steps: u64,
 }
 
-async fn start(ctx: &Sessions<'_>, client: &EnvClient) -> Result<Live, EnvError> {
+async fn start(
+    ctx: &Sessions<'_>,
+    client: &EnvClient,
+    cond: &mut Option<Conditioner>,
+    acts: u64,
+) -> Result<Live, EnvError> {
     let mut env = client.make(ctx.make).await?;
     // One stream per session: about 0.2 ms less per step than unary calls (issue 2's
     // bench). A broken stream closes the session on the server; `restart` makes it again.
     env.use_stream();
     let reset = env.reset(&[], &[]).await?;
-    let obs = reset.observation.to_flat_f32();
+    if let Some(c) = cond.as_mut() {
+        c.redraw_all(acts);
+    }
+    let obs = observed(cond, reset.observation.to_flat_f32(), None);
     let o = ctx.layout.obs_dim;
     let mut adders = vec![SnippetAdder::new(ctx.layout); ctx.make.num_envs];
     for (i, adder) in adders.iter_mut().enumerate() {
@@ -147,6 +196,8 @@ async fn restart(
     ctx: &Sessions<'_>,
     on: &mut Assignment,
     cause: &EnvError,
+    cond: &mut Option<Conditioner>,
+    acts: u64,
 ) -> Result<Option<Live>, EnvError> {
     tracing::warn!(actor = ctx.id, server = %on.address, error = %cause, "env session lost; reconnecting");
     let mut delay = Duration::from_millis(200);
@@ -161,7 +212,7 @@ async fn restart(
         for address in ctx.servers.candidates(&on.address).await {
             let attempt = match ctx.servers.client(&address).await {
                 // Probed with few retries: other addresses wait, and rounds back off.
-                Ok(client) => start(ctx, &client.with_retry(RetryPolicy::quick()))
+                Ok(client) => start(ctx, &client.with_retry(RetryPolicy::quick()), cond, acts)
                     .await
                     .map(|live| (live, client)),
                 Err(e) => Err(e),
@@ -222,6 +273,7 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         schedule,
         files,
         total_env_steps,
+        preferences,
     } = ctx;
     let sessions = Sessions {
         id,
@@ -233,21 +285,28 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     };
     let b = make.num_envs;
     let (o, k) = (layout.obs_dim, layout.num_rewards);
+    let mut cond = preferences.map(|(grid, draws)| Conditioner {
+        grid,
+        draws,
+        current: vec![0; b],
+    });
     let mut on = server;
-    let mut live = match start(&sessions, &on.client).await {
+    let mut acts = 0u64;
+    let mut live = match start(&sessions, &on.client, &mut cond, acts).await {
         Ok(live) => live,
         // The server went away between the pool's connect and this session.
-        Err(e) if recoverable(&e) => match restart(&sessions, &mut on, &e).await? {
-            Some(live) => live,
-            None => return Ok(()),
-        },
+        Err(e) if recoverable(&e) => {
+            match restart(&sessions, &mut on, &e, &mut cond, acts).await? {
+                Some(live) => live,
+                None => return Ok(()),
+            }
+        }
         Err(e) => return Err(e),
     };
     // Every way out of the loop, an error included, closes the session: a server
     // would otherwise hold it (and its simulators) until its lease runs out.
     let result: Result<(), EnvError> = async {
         let map = ActionMap::new(&live.env.spec().action_space)?;
-        let mut acts = 0u64;
         loop {
             if params.has_changed().unwrap_or(false) {
                 let snapshot = params.borrow_and_update().clone();
@@ -268,17 +327,23 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
             let (env_action, replay_actions) = map.apply(&out.actions, b);
             let step = match live.env.step(&env_action).await {
                 Ok(step) => step,
-                Err(e) if recoverable(&e) => match restart(&sessions, &mut on, &e).await? {
-                    Some(restarted) => {
-                        live = restarted;
-                        continue;
+                Err(e) if recoverable(&e) => {
+                    match restart(&sessions, &mut on, &e, &mut cond, acts).await? {
+                        Some(restarted) => {
+                            live = restarted;
+                            continue;
+                        }
+                        None => break,
                     }
-                    None => break,
-                },
+                }
                 Err(e) => return Err(e),
             };
-            let next = step.observation.to_flat_f32();
-            let finals = step.final_observation.to_flat_f32();
+            let next_env = step.observation.to_flat_f32();
+            // Both with the preference of the episode that just stepped.
+            let next = observed(&cond, next_env.clone(), None);
+            let ended: Vec<usize> = step.episodes.iter().map(|e| e.env_index).collect();
+            let finals = observed(&cond, step.final_observation.to_flat_f32(), Some(&ended));
+            let mut draws = cond.as_ref().map(|c| c.draws.at(2 * acts));
             let width = replay_actions.len() / b;
             let mut snippets = Vec::new();
             for i in 0..b {
@@ -297,10 +362,24 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 };
                 snippets.extend(live.adders[i].add(adder_step));
                 if ended_at.is_some() {
-                    live.adders[i].observe_first(&next[i * o..(i + 1) * o]);
+                    // The next episode acts with a new preference from its first state.
+                    if let (Some(c), Some(stream)) = (cond.as_mut(), draws.as_mut()) {
+                        c.current[i] = c.grid.draw(stream);
+                    }
+                    let first = match &cond {
+                        Some(c) => {
+                            let w = o - c.grid.num_features();
+                            observed(&cond, next_env[i * w..(i + 1) * w].to_vec(), Some(&[i]))
+                        }
+                        None => next[i * o..(i + 1) * o].to_vec(),
+                    };
+                    live.adders[i].observe_first(&first);
                 }
             }
-            live.obs = next;
+            live.obs = match cond {
+                Some(_) => observed(&cond, next_env, None),
+                None => next,
+            };
             {
                 let mut replay = schedule.replay.lock().unwrap_or_else(|e| e.into_inner());
                 for s in snippets {

@@ -2,6 +2,7 @@
 //! every sweep run, and `agent eval` on a checkpoint): the server reports each episode's
 //! undiscounted and discounted vector returns, so every client is evaluated alike.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -9,6 +10,7 @@ use tch::{Device, Tensor};
 
 use crate::actor::ActionMap;
 use crate::algo::Learner;
+use crate::algo::preferences::PreferenceGrid;
 use crate::config::ConfigError;
 use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::{EnvClient, RemoteEnv};
@@ -151,8 +153,30 @@ pub struct CheckpointPolicy {
     pub config: TrainConfig,
     /// The sizes the learner was built for.
     pub dims: LearnerDims,
-    /// The policy, with the checkpoint's parameters.
+    /// The policy, with the checkpoint's parameters; an ε-conditioned one acts at
+    /// its grid's default point (`with_epsilon` picks another).
     pub policy: ActorPolicy,
+    /// The preference grid of an ε-conditioned policy.
+    pub grid: Option<PreferenceGrid>,
+}
+
+impl CheckpointPolicy {
+    /// An ε-conditioned policy acting at `epsilon` (objective name -> ε of the
+    /// conditioned objectives; the others keep the grid's first value); an error for a
+    /// policy that is not conditioned or a name that is not a conditioned objective.
+    pub fn with_epsilon(mut self, epsilon: &BTreeMap<String, f64>) -> Result<Self, TrainError> {
+        let bad = |requirement: String| ConfigError::Invalid {
+            field: "--epsilon".into(),
+            requirement,
+            got: format!("{epsilon:?}"),
+        };
+        let grid = self.grid.as_ref().ok_or_else(|| {
+            bad("given only for an ε-conditioned policy (learner.conditioning); this checkpoint's policy has its ε fixed".into())
+        })?;
+        let eps = grid.epsilon_for(epsilon).map_err(bad)?;
+        self.policy = self.policy.at_preference(&grid.features_of(&eps));
+        Ok(self)
+    }
 }
 
 /// Load the policy of a checkpoint: a run directory (its latest checkpoint) or one
@@ -189,11 +213,16 @@ pub fn load_checkpoint_policy(path: &Path) -> Result<CheckpointPolicy, TrainErro
     policy
         .load(&learner.policy_snapshot())
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
+    let grid = learner.preference_grid().cloned();
+    if let Some(grid) = &grid {
+        policy = policy.at_preference(&grid.default_features());
+    }
     Ok(CheckpointPolicy {
         checkpoint: ckpt,
         config,
         dims,
         policy,
+        grid,
     })
 }
 
@@ -208,12 +237,30 @@ pub async fn evaluate_checkpoint(
     episodes: usize,
     video: Option<(&Path, &VideoOptions)>,
 ) -> Result<EvalReport, TrainError> {
+    evaluate_checkpoint_at(path, None, addresses, connection, episodes, video).await
+}
+
+/// [`evaluate_checkpoint`] of an ε-conditioned policy at the preference `epsilon`
+/// (objective name -> ε; `None`: the grid's default point, see
+/// `PreferenceGrid::default_point`).
+pub async fn evaluate_checkpoint_at(
+    path: &Path,
+    epsilon: Option<&BTreeMap<String, f64>>,
+    addresses: &[String],
+    connection: &ConnectionConfig,
+    episodes: usize,
+    video: Option<(&Path, &VideoOptions)>,
+) -> Result<EvalReport, TrainError> {
+    let mut loaded = load_checkpoint_policy(path)?;
+    if let Some(epsilon) = epsilon {
+        loaded = loaded.with_epsilon(epsilon)?;
+    }
     let CheckpointPolicy {
         checkpoint: ckpt,
         config: cfg,
         policy,
         ..
-    } = load_checkpoint_policy(path)?;
+    } = loaded;
     let client = ServerPool::connect(addresses, connection)
         .await?
         .first()

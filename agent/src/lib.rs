@@ -33,6 +33,7 @@ pub mod device;
 pub mod env;
 pub mod error;
 pub mod eval;
+pub mod front;
 pub mod learner;
 pub mod metrics;
 pub mod nets;

@@ -10,7 +10,7 @@ use agent::env::connection::ConnectionConfig;
 use agent::env::grpc::EnvClient;
 use agent::env::pool::ServerPool;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::eval::evaluate_checkpoint;
+use agent::eval::evaluate_checkpoint_at;
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, sweep};
 use agent::train::{TrainOptions, train};
@@ -110,6 +110,11 @@ enum Command {
         video: Option<PathBuf>,
         #[command(flatten)]
         video_args: VideoArgs,
+        /// An ε-conditioned policy's preference, e.g. `task=0.1,action_norm=0.02`:
+        /// conditioned objectives only, any ε > 0 (on its training grid or not);
+        /// default: the grid's middle point.
+        #[arg(long, value_name = "NAME=EPS,...", value_parser = agent::algo::preferences::parse_setting)]
+        epsilon: Option<std::collections::BTreeMap<String, f64>>,
     },
     /// Write a checkpoint's deterministic actions for the observations in a file.
     ///
@@ -349,14 +354,22 @@ async fn run() -> Result<()> {
             connection,
             video,
             video_args,
+            epsilon,
         } => {
             let connection = connection.apply(ConnectionConfig::default());
             connection.validate()?;
             let (addresses, local) = server_addresses(&servers, &connection).await?;
             let options = video_args.options();
             let video = video.as_deref().map(|path| (path, &options));
-            let report =
-                evaluate_checkpoint(&checkpoint, &addresses, &connection, episodes, video).await;
+            let report = evaluate_checkpoint_at(
+                &checkpoint,
+                epsilon.as_ref(),
+                &addresses,
+                &connection,
+                episodes,
+                video,
+            )
+            .await;
             if let Some(local) = local {
                 local.stop().await?;
             }

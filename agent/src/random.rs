@@ -35,6 +35,11 @@ pub enum Purpose {
     LearnerActing,
     /// Which snippets the replay samples.
     Replay,
+    /// The preference (grid point) of each new episode of one actor's instances
+    /// (`index` is the actor number; counter: the actor's step).
+    ActingPreference,
+    /// The grid points a conditioned learner trains its batch's snippets at.
+    LearnerPreference,
 }
 
 impl Purpose {
@@ -45,6 +50,8 @@ impl Purpose {
             Purpose::Acting => 3,
             Purpose::LearnerActing => 4,
             Purpose::Replay => 5,
+            Purpose::ActingPreference => 6,
+            Purpose::LearnerPreference => 7,
         }
     }
 }
@@ -103,6 +110,11 @@ impl RandomStream {
             .map(|_| self.rng.sample(StandardNormal))
             .collect();
         to_tensor(&values, shape, device)
+    }
+
+    /// An integer uniform in `0..n` (n > 0).
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.rng.random_range(0..n)
     }
 
     /// Uniforms in [0, 1) of `shape`, f32 on `device`.

@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{ConfigError, LearnerConfig};
 use crate::env::connection::ConnectionConfig;
 use crate::env::discovery::{DiscoveryError, FORMS, ServerSource};
+use crate::front::FrontConfig;
 
 /// Which environment the actors step, and where.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -132,6 +133,10 @@ pub struct TrainConfig {
     /// The learner (Table 2 defaults).
     #[serde(default)]
     pub learner: LearnerConfig,
+    /// How an ε-conditioned run's front is measured; required with
+    /// `learner.conditioning`, refused without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front: Option<FrontConfig>,
 }
 
 impl TrainConfig {
@@ -202,6 +207,23 @@ impl TrainConfig {
                 &format!("at most env.num_envs - 1 = {}", self.env.num_envs - 1),
                 self.env.workers.to_string(),
             );
+        }
+        match (&self.learner.conditioning, &self.front) {
+            (Some(_), None) => {
+                return invalid(
+                    "front",
+                    "a [front] section with reference_point when learner.conditioning is set (the run ends by measuring its front)",
+                    "no [front]".into(),
+                );
+            }
+            (None, Some(_)) => {
+                return invalid(
+                    "front",
+                    "absent unless learner.conditioning is set (a fixed-ε run has one point, not a front)",
+                    "a [front] section".into(),
+                );
+            }
+            _ => {}
         }
         let r = &self.run;
         if !(r.learner_steps_per_env_step.is_finite() && r.learner_steps_per_env_step > 0.0) {

@@ -52,21 +52,68 @@ fn active_mask(epsilon: &Tensor) -> Tensor {
     epsilon.gt(0.0).to_kind(Kind::Float)
 }
 
+/// How the temperature dual of eq. 34 averages over states.
+#[derive(Debug, Clone, Copy)]
+pub enum StateMean<'a> {
+    /// One ε and eta per objective (`[K]`): the plain mean over the B states.
+    Uniform,
+    /// ε-conditioned MO-MPO: `temperature` and `epsilon` are `[B, K]`, each state's
+    /// grid point's, and each grid point's dual averages over its own states
+    /// (`weights [B]`, summing to 1 over the states of one grid point); the duals of
+    /// all grid points are summed, each depending only on its own eta.
+    PerGridPoint(&'a Tensor),
+}
+
+impl StateMean<'_> {
+    /// `sum_k` of the dual `eta (eps + log_partition - offset)` over active objectives
+    /// (`offset` = log M for the sampled E-step, 0 for the exact one).
+    /// # Shapes
+    /// `log_partition [B, K]`; `temperature`, `epsilon`, `active`: `[K]` (uniform) or
+    /// `[B, K]` (per grid point).
+    fn temperature_loss(
+        self,
+        log_partition: &Tensor,
+        offset: f64,
+        temperature: &Tensor,
+        epsilon: &Tensor,
+        active: &Tensor,
+    ) -> Tensor {
+        match self {
+            StateMean::Uniform => {
+                let mean = log_partition.mean_dim(0, false, Kind::Float) - offset;
+                let dual = temperature * (epsilon + mean);
+                (dual * active).sum(Kind::Float)
+            }
+            StateMean::PerGridPoint(weights) => {
+                let dual = temperature * (epsilon + (log_partition - offset));
+                (dual * active * weights.unsqueeze(-1)).sum(Kind::Float)
+            }
+        }
+    }
+}
+
 /// Sampled E-step (Gaussian policy).
 /// # Shapes
 /// `q [M, B, K]`, `temperature [K]` (positive, may require grad), `epsilon [K]`.
 pub fn sampled_estep(q: &Tensor, temperature: &Tensor, epsilon: &Tensor) -> EStepOutput {
+    sampled_estep_with(q, temperature, epsilon, StateMean::Uniform)
+}
+
+/// [`sampled_estep`] with temperature and epsilon `[K]` or, per grid point, `[B, K]`.
+pub fn sampled_estep_with(
+    q: &Tensor,
+    temperature: &Tensor,
+    epsilon: &Tensor,
+    states: StateMean<'_>,
+) -> EStepOutput {
     let m = q.size()[0];
     let active = active_mask(epsilon);
     let scaled = q.detach() / temperature;
     let softmax = scaled.detach().softmax(0, Kind::Float);
     let weights: Tensor = &softmax * &active + (1.0 - &active) / (m as f64);
-    let log_mean_exp = scaled
-        .logsumexp([0i64].as_slice(), false)
-        .mean_dim(0, false, Kind::Float)
-        - (m as f64).ln();
-    let dual = temperature * (epsilon + log_mean_exp);
-    let temperature_loss = (dual * &active).sum(Kind::Float);
+    let log_sum_exp = scaled.logsumexp([0i64].as_slice(), false);
+    let temperature_loss =
+        states.temperature_loss(&log_sum_exp, (m as f64).ln(), temperature, epsilon, &active);
     let kl = (&weights * (&weights * (m as f64)).clamp_min(1e-30).log())
         .sum_dim_intlist(0, false, Kind::Float)
         .mean_dim(0, false, Kind::Float);
@@ -86,16 +133,25 @@ pub fn exact_estep(
     temperature: &Tensor,
     epsilon: &Tensor,
 ) -> EStepOutput {
+    exact_estep_with(q, log_prior, temperature, epsilon, StateMean::Uniform)
+}
+
+/// [`exact_estep`] with temperature and epsilon `[K]` or, per grid point, `[B, K]`.
+pub fn exact_estep_with(
+    q: &Tensor,
+    log_prior: &Tensor,
+    temperature: &Tensor,
+    epsilon: &Tensor,
+    states: StateMean<'_>,
+) -> EStepOutput {
     let active = active_mask(epsilon);
     let log_prior = log_prior.detach().unsqueeze(-1);
     let scaled = q.detach() / temperature + &log_prior;
     let posterior = scaled.detach().softmax(0, Kind::Float);
     let weights: Tensor = &posterior * &active + log_prior.exp() * (1.0 - &active);
-    let log_partition = scaled
-        .logsumexp([0i64].as_slice(), false)
-        .mean_dim(0, false, Kind::Float);
-    let dual = temperature * (epsilon + log_partition);
-    let temperature_loss = (dual * &active).sum(Kind::Float);
+    let log_partition = scaled.logsumexp([0i64].as_slice(), false);
+    let temperature_loss =
+        states.temperature_loss(&log_partition, 0.0, temperature, epsilon, &active);
     let kl = (&weights * (weights.clamp_min(1e-30).log() - &log_prior))
         .sum_dim_intlist(0, false, Kind::Float)
         .mean_dim(0, false, Kind::Float);
@@ -232,5 +288,66 @@ mod tests {
                 .select(2, 1)
                 .allclose(&prior.exp(), 1e-6, 1e-7, false)
         );
+    }
+
+    #[test]
+    fn per_grid_point_duals_are_the_grid_points_own_estep_duals() {
+        // States 0, 2, 3 are at grid point 0 (eta 1.5, 0.5; eps 0.1, 0.01), states 1, 4
+        // at grid point 1 (eta 0.7, 2.0; eps 0.3, 0.05). The conditioned loss must be
+        // the sum of the two plain E-steps run on each point's states alone, with the
+        // same gradient for each point's temperatures, for both E-step kinds.
+        let q = crate::random::StreamKey::new(9, crate::random::Purpose::LearnerNoise, 0)
+            .at(0)
+            .normal(&[6, 5, 2], Device::Cpu);
+        let prior = q.select(2, 0).log_softmax(0, Kind::Float);
+        let mut table = Tensor::from_slice(&[1.5f32, 0.5, 0.7, 2.0])
+            .reshape([2, 2])
+            .set_requires_grad(true);
+        let eps = Tensor::from_slice(&[0.1f32, 0.01, 0.3, 0.05]).reshape([2, 2]);
+        let index = Tensor::from_slice(&[0i64, 1, 0, 0, 1]);
+        let weights = Tensor::from_slice(&[1.0f32 / 3.0, 0.5, 1.0 / 3.0, 1.0 / 3.0, 0.5]);
+        let groups = [
+            Tensor::from_slice(&[0i64, 2, 3]),
+            Tensor::from_slice(&[1i64, 4]),
+        ];
+        for exact in [false, true] {
+            let run = |q: &Tensor, prior: &Tensor, eta: &Tensor, eps: &Tensor, states| {
+                if exact {
+                    exact_estep_with(q, prior, eta, eps, states)
+                } else {
+                    sampled_estep_with(q, eta, eps, states)
+                }
+            };
+            let eta = table.index_select(0, &index);
+            let e = eps.index_select(0, &index);
+            let joint = run(&q, &prior, &eta, &e, StateMean::PerGridPoint(&weights));
+            table.zero_grad();
+            joint.temperature_loss.backward();
+            let joint_grad = table.grad().copy();
+            table.zero_grad();
+            let mut separate = Tensor::zeros([], (Kind::Float, Device::Cpu));
+            for (g, rows) in groups.iter().enumerate() {
+                let out = run(
+                    &q.index_select(1, rows),
+                    &prior.index_select(1, rows),
+                    &table.get(g as i64),
+                    &eps.get(g as i64),
+                    StateMean::Uniform,
+                );
+                separate += out.temperature_loss;
+                let w = joint.weights.index_select(1, rows);
+                assert!(
+                    w.allclose(&out.weights, 1e-6, 1e-7, false),
+                    "weights, exact {exact}"
+                );
+            }
+            separate.backward();
+            let close = |a: &Tensor, b: &Tensor| (a - b).abs().max().double_value(&[]) < 1e-5;
+            assert!(
+                close(&joint.temperature_loss, &separate),
+                "loss, exact {exact}"
+            );
+            assert!(close(&joint_grad, &table.grad()), "gradient, exact {exact}");
+        }
     }
 }

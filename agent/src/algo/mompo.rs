@@ -22,12 +22,19 @@
 //!    dual floor (`dual.rs`).
 //! 4. Every `target_update_period` steps the target networks are copied from the online ones.
 //!
+//! **ε-conditioned** (`learner.conditioning`, `preferences.rs`): every snippet is trained
+//! at one grid point ε_g, drawn for it (relabelling) or the one it was collected with;
+//! its states' preference features say which, so policy, critics and Retrace all see
+//! (s, ε_g), and the E-step solves eq. 34 per grid point with that point's eta_g.
+//! The M-step's trust region (alpha) is shared by all grid points.
+//!
 //! Shape legend: T snippet length, B snippets, N = (T+1)B states, M samples, D action
 //! dims, A discrete actions, K objectives, C critics.
 
 use super::batch::SnippetBatch;
-use super::estep::{EStepOutput, exact_estep, sampled_estep};
+use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep, sampled_estep_with};
 use super::objectives::{QSource, action_norm_q};
+use super::preferences::{StatePreferences, collected_index, relabel};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec,
@@ -88,7 +95,8 @@ impl Learner {
         let batch = batch.to_device(self.device);
         let (t_len, b) = (batch.len(), batch.batch_size());
         let n = (t_len + 1) * b;
-        let obs_all = batch.observations.reshape([n, self.dims.obs_dim]);
+        let (observations, preferences) = self.preferences_of(&batch.observations, t_len);
+        let obs_all = observations.reshape([n, self.dims.obs_dim]);
         let obs_taken = obs_all.narrow(0, 0, t_len * b);
         let act_taken = batch.actions.flatten(0, 1);
         let heads = self.bound.critic_names.len() as i64;
@@ -177,6 +185,10 @@ impl Learner {
 
         // The E- and M-steps see only real states (all of them, in most batches).
         let real = real_states(&batch.valid, &batch.discounts);
+        let preferences = match (&real, preferences) {
+            (Some(index), Some(p)) => Some(p.rows(index, &self.conditioned_epsilon())),
+            (_, p) => p,
+        };
         let (obs_real, target_out, samples, critic_q, log_prior) = match &real {
             None => (obs_all, target_out, samples, critic_q, log_prior),
             Some(index) => (
@@ -192,9 +204,21 @@ impl Learner {
         let start = Instant::now();
         let q = self.estep_q(&critic_q, &samples);
         let temperature = self.duals.temperature();
+        let (temperature, epsilon, states) = match &preferences {
+            None => (
+                temperature,
+                self.epsilon.shallow_clone(),
+                StateMean::Uniform,
+            ),
+            Some(p) => (
+                p.temperature(&temperature.reshape([-1, self.epsilon.size()[0]])),
+                p.epsilon.shallow_clone(),
+                StateMean::PerGridPoint(&p.state_weight),
+            ),
+        };
         let estep: EStepOutput = match &log_prior {
-            None => sampled_estep(&q, &temperature, &self.epsilon),
-            Some(prior) => exact_estep(&q, prior, &temperature, &self.epsilon),
+            None => sampled_estep_with(&q, &temperature, &epsilon, states),
+            Some(prior) => exact_estep_with(&q, prior, &temperature, &epsilon, states),
         };
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
         let e_step_ms = ms_since(start, self.device);
@@ -224,6 +248,46 @@ impl Learner {
                 target_update_ms: 0.0,
             },
         })
+    }
+
+    /// The batch's observations `[T+1, B, O]` as the step trains on them, and for an
+    /// ε-conditioned learner the grid point of each of the N = (T+1)B states: drawn
+    /// per snippet from the `LearnerPreference` stream at this step and written into
+    /// the features (relabelling), or read back from them.
+    fn preferences_of(
+        &self,
+        observations: &Tensor,
+        t_len: i64,
+    ) -> (Tensor, Option<StatePreferences>) {
+        let Some(c) = &self.conditioned else {
+            return (observations.shallow_clone(), None);
+        };
+        let (observations, index) = if c.relabel {
+            let b = observations.size()[1];
+            let mut stream = self.stream(Purpose::LearnerPreference);
+            let drawn: Vec<i64> = (0..b).map(|_| c.grid.draw(&mut stream) as i64).collect();
+            let index = Tensor::from_slice(&drawn).to_device(self.device);
+            (relabel(observations, &index, &c.features), index)
+        } else {
+            (
+                observations.shallow_clone(),
+                collected_index(observations, &c.features),
+            )
+        };
+        // Rows are (t, b) t-major, so every state of snippet b has its index.
+        let per_state = index.repeat([t_len + 1]);
+        (
+            observations,
+            Some(StatePreferences::new(per_state, &c.epsilon)),
+        )
+    }
+
+    /// `[G, K]` ε table of a conditioned learner.
+    fn conditioned_epsilon(&self) -> Tensor {
+        self.conditioned
+            .as_ref()
+            .map(|c| c.epsilon.shallow_clone())
+            .expect("only conditioned learners have state preferences")
     }
 
     /// Policy improvement only (E-step, M-step, duals) on given Q-values of the target

@@ -19,6 +19,7 @@ use super::dual::Duals;
 use super::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
 use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
+use super::preferences::PreferenceGrid;
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
@@ -106,6 +107,19 @@ struct Networks {
     critics: Critics,
 }
 
+/// What an ε-conditioned learner adds (`learner.conditioning`).
+#[derive(Debug)]
+pub(crate) struct Conditioned {
+    /// The grid of preferences.
+    pub grid: PreferenceGrid,
+    /// `[G, K]` ε of every grid point.
+    pub epsilon: Tensor,
+    /// `[G, F]` input features of every grid point.
+    pub features: Tensor,
+    /// Train each snippet at a freshly drawn grid point.
+    pub relabel: bool,
+}
+
 /// Networks, targets, optimizers, duals and the step counter of one learner.
 #[derive(Debug)]
 pub struct Learner {
@@ -127,6 +141,9 @@ pub struct Learner {
     pub(crate) epsilon: Tensor,
     /// `[K_env, C]`: which reward each critic head learns.
     pub(crate) critic_reward_weights: Tensor,
+    /// The preference grid of an ε-conditioned learner; its temperatures are then
+    /// `[G * K]`, grid point by grid point.
+    pub(crate) conditioned: Option<Conditioned>,
     /// Where the sampled actions' noise comes from.
     pub(crate) noise: NoiseSource,
     /// Sampling `act` calls so far: the counter of the `LearnerActing` stream.
@@ -172,7 +189,31 @@ impl Learner {
         let adam = AdamConfig::new(settings.learning_rate, settings.adam_eps);
         let policy_opt = Adam::for_var_store(&policy_vs, adam);
         let critic_opt = Adam::for_var_store(&critic_vs, adam);
-        let temperatures = vec![settings.init_temperature; bound.objectives.len()];
+        let conditioned = match &cfg.conditioning {
+            None => None,
+            Some(c) => {
+                let grid = PreferenceGrid::new(c, &bound.objectives);
+                if dims.preference_features() != grid.num_features() {
+                    return Err(ConfigError::Invalid {
+                        field: "learner.conditioning".into(),
+                        requirement: format!(
+                            "observations that end with {} preference features (LearnerDims::with_preference_features)",
+                            grid.num_features()
+                        ),
+                        got: format!("{} features", dims.preference_features()),
+                    }
+                    .into());
+                }
+                Some(Conditioned {
+                    epsilon: grid.epsilon_table(device),
+                    features: grid.feature_table(device),
+                    relabel: c.relabel,
+                    grid,
+                })
+            }
+        };
+        let grid_points = conditioned.as_ref().map_or(1, |c| c.grid.len());
+        let temperatures = vec![settings.init_temperature; grid_points * bound.objectives.len()];
         let alphas: Vec<Vec<f64>> = match dims.action {
             ActionKind::Continuous { dim } => {
                 let per_part = match settings.kl_constraint {
@@ -224,6 +265,7 @@ impl Learner {
             duals,
             epsilon,
             critic_reward_weights,
+            conditioned,
             noise,
             acts: Cell::new(0),
             step: 0,
@@ -291,6 +333,11 @@ impl Learner {
     /// The dimensions the learner was built for.
     pub fn dims(&self) -> &LearnerDims {
         &self.dims
+    }
+
+    /// The preference grid, when the learner is ε-conditioned.
+    pub fn preference_grid(&self) -> Option<&PreferenceGrid> {
+        self.conditioned.as_ref().map(|c| &c.grid)
     }
 
     /// Bound objectives (E-step order) and critic heads.

@@ -6,11 +6,13 @@
 //! comes from, or says where it comes from when the paper leaves it open (Acme's TF
 //! MO-MPO and rlax's V-MPO, see `research/acme_mompo.md` §6-7).
 
+mod conditioning;
 mod mpo;
 mod network;
 mod shared;
 mod vmpo;
 
+pub use conditioning::{ConditioningConfig, MAX_GRID_POINTS};
 pub use mpo::MpoConfig;
 pub use network::{Architecture, NetworkConfig};
 pub use shared::{KlConstraint, SharedSettings, TemperatureParameterization};
@@ -140,6 +142,9 @@ pub struct LearnerConfig {
     /// Where the learner runs: `auto` (a GPU when libtorch sees one and the networks
     /// are large enough to gain from it, see `device.rs`), `cpu` or `cuda`.
     pub device: DeviceChoice,
+    /// ε-conditioned MO-MPO: one run learns a grid of preferences (a whole front)
+    /// instead of one ε vector. Absent: the paper's MO-MPO, one preference per run.
+    pub conditioning: Option<ConditioningConfig>,
 }
 
 /// The learner's device setting (`learner.device`, `--device`).
@@ -166,6 +171,7 @@ impl Default for LearnerConfig {
             seed: 0,
             num_threads: None,
             device: DeviceChoice::Auto,
+            conditioning: None,
         }
     }
 }
@@ -284,6 +290,11 @@ fn non_negative(field: &str, x: f64) -> Result<(), ConfigError> {
 }
 
 impl LearnerConfig {
+    /// Input features an ε-conditioned learner appends to observations (0 otherwise).
+    pub fn preference_features(&self) -> usize {
+        self.conditioning.as_ref().map_or(0, |c| c.epsilon.len())
+    }
+
     /// Checks every field (names against the env are checked by `algo::objectives::bind`).
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.network.validate()?;
@@ -327,6 +338,22 @@ impl LearnerConfig {
                     check(w.weight.is_finite(), &field, "finite", w.weight)?;
                 }
             }
+        }
+        if let Some(c) = &self.conditioning {
+            check(
+                self.algorithm == Algorithm::MoMpo,
+                "learner.conditioning",
+                "used with algorithm.kind = \"mo_mpo\" only",
+                self.algorithm.short_name(),
+            )?;
+            check(
+                !matches!(self.network.architecture, Architecture::Mocap { .. }),
+                "learner.conditioning",
+                "used with a feed-forward network (the mocap torso reads its inputs by name)",
+                &self.network.architecture,
+            )?;
+            let names: Vec<&str> = self.objectives.iter().map(|o| o.name.as_str()).collect();
+            c.validate(&names)?;
         }
         Ok(())
     }

@@ -63,6 +63,10 @@ impl ActionBounds {
     }
 }
 
+/// Name of the observation leaf that ε-conditioned learners append to the env's
+/// observation: the preference features of `algo::preferences`.
+pub const PREFERENCE_LEAF: &str = "preference";
+
 /// Sizes the networks need, taken from an `EnvSpec`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LearnerDims {
@@ -101,6 +105,27 @@ fn leaves(prefix: &str, space: &Space, out: &mut Vec<ObsLeaf>) {
 }
 
 impl LearnerDims {
+    /// The same sizes with `features` preference features appended to every
+    /// observation (none: unchanged).
+    pub fn with_preference_features(mut self, features: usize) -> Self {
+        if features > 0 {
+            self.obs_dim += features as i64;
+            self.obs_leaves.push(ObsLeaf {
+                name: PREFERENCE_LEAF.into(),
+                dim: features as i64,
+            });
+        }
+        self
+    }
+
+    /// How many preference features the observations end with (0: not conditioned).
+    pub fn preference_features(&self) -> usize {
+        self.obs_leaves
+            .iter()
+            .find(|l| l.name == PREFERENCE_LEAF)
+            .map_or(0, |l| l.dim as usize)
+    }
+
     /// Reads the dimensions from a spec; a Dict action space is rejected.
     pub fn from_spec(spec: &EnvSpec) -> Result<Self, ConfigError> {
         let action = match &spec.action_space {

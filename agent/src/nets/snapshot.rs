@@ -132,6 +132,10 @@ pub fn load_named(tensors: &[NamedArray], vs: &nn::VarStore) -> Result<(), Snaps
 pub struct ActorPolicy {
     vs: nn::VarStore,
     policy: Policy,
+    /// `[F]` preference features appended to every observation `act` is given (an
+    /// ε-conditioned policy evaluated at one preference); `None`: observations are
+    /// passed as they are.
+    preference: Option<Tensor>,
 }
 
 impl ActorPolicy {
@@ -143,7 +147,11 @@ impl ActorPolicy {
         seeded_init(0, || {
             let vs = nn::VarStore::new(device);
             let policy = Policy::new(&(vs.root() / "policy"), cfg, dims);
-            Self { vs, policy }
+            Self {
+                vs,
+                policy,
+                preference: None,
+            }
         })
     }
 
@@ -152,8 +160,23 @@ impl ActorPolicy {
         snapshot.load_into(&self.vs)
     }
 
-    /// Samples (or takes the mode of) actions. # Shapes `obs [B, obs_dim]`.
+    /// The same policy acting at one preference: `features` (`PreferenceGrid::
+    /// features_of`) are appended to every observation row `act` is given.
+    pub fn at_preference(mut self, features: &[f32]) -> Self {
+        self.preference = Some(Tensor::from_slice(features).to_device(self.vs.device()));
+        self
+    }
+
+    /// Samples (or takes the mode of) actions. # Shapes `obs [B, obs_dim]` (without the
+    /// preference features when `at_preference` set them).
     pub fn act(&self, obs: &Tensor, acting: Acting<'_>) -> ActOutput {
-        self.policy.act(&obs.to_device(self.vs.device()), acting)
+        let obs = obs.to_device(self.vs.device());
+        match &self.preference {
+            None => self.policy.act(&obs, acting),
+            Some(features) => {
+                let rows = features.unsqueeze(0).expand([obs.size()[0], -1], false);
+                self.policy.act(&Tensor::cat(&[obs, rows], 1), acting)
+            }
+        }
     }
 }

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{Algorithm, ConfigError, ObjectiveWeight};
+pub use crate::front::RatioPlot;
 use crate::run_config::TrainConfig;
 
 /// What the grid varies.
@@ -70,18 +71,6 @@ pub struct Grid {
     pub complement: BTreeMap<String, String>,
 }
 
-/// A Fig. 5-style plot: `y_objective`'s return against setting[numerator]/setting[denominator].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RatioPlot {
-    /// Objective whose setting is the numerator.
-    pub numerator: String,
-    /// Objective whose setting is the denominator (one series per value of it).
-    pub denominator: String,
-    /// Objective whose evaluation return is plotted.
-    pub y_objective: String,
-}
-
 /// A sweep file (`configs/sweeps/*.toml`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -100,8 +89,7 @@ pub struct SweepConfig {
     pub total_env_steps: Option<u64>,
     /// Runs trained at the same time. One run alternates actor and learner (the
     /// schedule's lockstep), so 2-3 keep two cores busy; set learner.num_threads = 1.
-    /// Concurrent runs share libtorch's process-wide random generator, so only
-    /// `parallel = 1` makes every run bit-reproducible.
+    /// Every run draws from its own random streams, so `parallel` changes no result.
     #[serde(default = "default_parallel")]
     pub parallel: usize,
     /// The settings.
@@ -202,6 +190,13 @@ impl SweepConfig {
         let settings = self.settings();
         if settings.is_empty() {
             return Err(invalid("grid", "a non-empty product or points", "nothing"));
+        }
+        if base.learner.conditioning.is_some() {
+            return Err(invalid(
+                "base",
+                "a fixed-ε run config (an ε-conditioned run, learner.conditioning, traces its front by itself: run it with agent train)",
+                &self.base,
+            ));
         }
         let expected_kind = if base.learner.algorithm.scalarization().is_some() {
             GridKind::Weight

@@ -170,7 +170,7 @@ pub async fn sweep(
         .first()
         .map(|(.., s)| s.objectives.clone())
         .unwrap_or_default();
-    let mut points: Vec<SweepPoint> = finished
+    let points: Vec<SweepPoint> = finished
         .into_iter()
         .map(|(_, setting, seed, s)| SweepPoint {
             setting,
@@ -182,47 +182,80 @@ pub async fn sweep(
         })
         .collect();
     bar.finish_and_clear();
-    let reference: Vec<f64> = objectives
-        .iter()
-        .map(|n| {
-            sweep
-                .reference_point
-                .get(n)
-                .copied()
-                .ok_or_else(|| invalid("reference_point", "a value per objective", n))
-        })
-        .collect::<Result<_, _>>()?;
-    let returns: Vec<Vec<f64>> = points.iter().map(|p| p.eval_return.clone()).collect();
-    for i in non_dominated(&returns) {
-        points[i].on_front = true;
+    let report = FrontReport {
+        name: &sweep.name,
+        reference_point: &sweep.reference_point,
+        true_front: &sweep.true_front,
+        ratio_plot: sweep.ratio_plot.as_ref(),
+    };
+    report.write(dir, objectives, points, started.elapsed().as_secs_f64())
+}
+
+/// How a front is measured and drawn: a sweep file's settings, or an ε-conditioned
+/// run's `[front]`.
+#[derive(Debug, Clone, Copy)]
+pub struct FrontReport<'a> {
+    /// Title of the plots.
+    pub name: &'a str,
+    /// Hypervolume reference point, objective name -> value.
+    pub reference_point: &'a BTreeMap<String, f64>,
+    /// A known Pareto front, objective name -> values (may be empty).
+    pub true_front: &'a BTreeMap<String, Vec<f64>>,
+    /// The Fig. 5-style plot, when wanted.
+    pub ratio_plot: Option<&'a RatioPlot>,
+}
+
+impl FrontReport<'_> {
+    /// Marks the non-dominated points, measures the front (hypervolume, EUM, IGD) and
+    /// writes `points.csv`, `front.csv`, `summary.json` and the plots into `dir`.
+    pub fn write(
+        &self,
+        dir: PathBuf,
+        objectives: Vec<String>,
+        mut points: Vec<SweepPoint>,
+        wall_seconds: f64,
+    ) -> Result<SweepSummary, TrainError> {
+        let reference: Vec<f64> = objectives
+            .iter()
+            .map(|n| {
+                self.reference_point
+                    .get(n)
+                    .copied()
+                    .ok_or_else(|| invalid("reference_point", "a value per objective", n))
+            })
+            .collect::<Result<_, _>>()?;
+        let returns: Vec<Vec<f64>> = points.iter().map(|p| p.eval_return.clone()).collect();
+        for i in non_dominated(&returns) {
+            points[i].on_front = true;
+        }
+        let true_front: Vec<Vec<f64>> = match objectives
+            .iter()
+            .map(|n| self.true_front.get(n))
+            .collect::<Option<Vec<_>>>()
+        {
+            Some(columns) if !columns.is_empty() => (0..columns[0].len())
+                .map(|i| columns.iter().map(|c| c[i]).collect())
+                .collect(),
+            _ => Vec::new(),
+        };
+        let known = !true_front.is_empty();
+        let summary = SweepSummary {
+            dir,
+            hypervolume: hypervolume(&returns, &reference),
+            seed_fronts: seeds::seed_fronts(&points, &reference),
+            settings: seeds::setting_spreads(&points),
+            expected_utility: expected_utility(&returns, &simplex_weights(objectives.len(), 100)),
+            true_hypervolume: known.then(|| hypervolume(&true_front, &reference)),
+            igd: (known && !returns.is_empty()).then(|| igd(&returns, &true_front)),
+            true_front,
+            reference_point: reference,
+            objectives,
+            points,
+            wall_seconds,
+        };
+        report::write_outputs(self, &summary)?;
+        Ok(summary)
     }
-    let true_front: Vec<Vec<f64>> = match objectives
-        .iter()
-        .map(|n| sweep.true_front.get(n))
-        .collect::<Option<Vec<_>>>()
-    {
-        Some(columns) if !columns.is_empty() => (0..columns[0].len())
-            .map(|i| columns.iter().map(|c| c[i]).collect())
-            .collect(),
-        _ => Vec::new(),
-    };
-    let known = !true_front.is_empty();
-    let summary = SweepSummary {
-        dir: dir.clone(),
-        hypervolume: hypervolume(&returns, &reference),
-        seed_fronts: seeds::seed_fronts(&points, &reference),
-        settings: seeds::setting_spreads(&points),
-        expected_utility: expected_utility(&returns, &simplex_weights(objectives.len(), 100)),
-        true_hypervolume: known.then(|| hypervolume(&true_front, &reference)),
-        igd: (known && !returns.is_empty()).then(|| igd(&returns, &true_front)),
-        true_front,
-        reference_point: reference,
-        objectives,
-        points,
-        wall_seconds: started.elapsed().as_secs_f64(),
-    };
-    report::write_outputs(sweep, &summary)?;
-    Ok(summary)
 }
 
 #[cfg(test)]

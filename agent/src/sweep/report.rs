@@ -4,18 +4,18 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use super::{SweepConfig, SweepSummary, invalid};
+use super::{FrontReport, SweepSummary, invalid};
 use crate::metrics::write_json_atomic;
 use crate::pareto::attainment_surface;
 use crate::plot::{Figure, Series, SeriesKind};
 use crate::train::TrainError;
 
-pub(super) fn write_outputs(sweep: &SweepConfig, s: &SweepSummary) -> Result<(), TrainError> {
+pub(super) fn write_outputs(sweep: &FrontReport<'_>, s: &SweepSummary) -> Result<(), TrainError> {
     let io = |path: PathBuf| move |source| TrainError::Io { path, source };
-    let names: Vec<String> = sweep
-        .settings()
+    let names: Vec<String> = s
+        .points
         .first()
-        .map(|f| f.keys().cloned().collect())
+        .map(|p| p.setting.keys().cloned().collect())
         .unwrap_or_default();
     let mut csv = String::new();
     let header: Vec<String> = names
@@ -56,9 +56,9 @@ pub(super) fn write_outputs(sweep: &SweepConfig, s: &SweepSummary) -> Result<(),
     std::fs::write(&front_csv, front.join("\n") + "\n").map_err(io(front_csv.clone()))?;
     write_json_atomic(&s.dir.join("summary.json"), s).map_err(io(s.dir.join("summary.json")))?;
     if s.objectives.len() >= 2 {
-        crate::plot::save(&front_figure(&sweep.name, s), &s.dir.join("front"))?;
+        crate::plot::save(&front_figure(sweep.name, s), &s.dir.join("front"))?;
     }
-    if let Some(rp) = &sweep.ratio_plot {
+    if let Some(rp) = sweep.ratio_plot {
         let y = s
             .objectives
             .iter()

@@ -22,6 +22,7 @@ use tokio::sync::watch;
 
 use crate::actor::{ActorContext, run_actor};
 use crate::algo::objectives::{LearnerDims, check_declared};
+use crate::algo::preferences::PreferenceGrid;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
 use crate::env::grpc::EnvClient;
@@ -36,12 +37,14 @@ use crate::random::{Purpose, StreamKey};
 use crate::run_config::TrainConfig;
 use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
+use crate::sweep::SweepSummary;
 use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
 use futures::FutureExt;
 use std::panic::AssertUnwindSafe;
 
 mod curves;
 mod finish;
+mod front;
 mod progress;
 mod setup;
 
@@ -146,6 +149,9 @@ pub struct TrainSummary {
     /// The env servers each actor had its session on, in order (more than one when
     /// its server was lost and it moved).
     pub actor_servers: Vec<ActorServers>,
+    /// ε-conditioned runs: the front of the deterministic policy over the preference
+    /// grid (also `<run>/front/`); the evaluation above is at the grid's middle point.
+    pub front: Option<SweepSummary>,
 }
 
 /// Run one training job against the servers `addresses` name (plain addresses, `dns:`
@@ -159,7 +165,8 @@ pub async fn train(
     configure_threads(cfg.learner.num_threads);
     let servers = Arc::new(ServerPool::connect(addresses, &cfg.env.connection).await?);
     let spec = probe_spec(&servers.first().client, &cfg).await?;
-    let dims = LearnerDims::from_spec(&spec)?;
+    let dims =
+        LearnerDims::from_spec(&spec)?.with_preference_features(cfg.learner.preference_features());
     check_declared(&cfg.learner, &spec.objectives)?;
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
@@ -169,6 +176,7 @@ pub async fn train(
         learner,
         counters,
     } = open_run(&cfg, options.resume.as_deref(), &dims, device)?;
+    let grid = learner.preference_grid().cloned().map(Arc::new);
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
     if options.resume.is_some() {
         files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
@@ -216,6 +224,12 @@ pub async fn train(
             schedule: schedule.clone(),
             files: files.clone(),
             total_env_steps: cfg.run.total_env_steps,
+            preferences: grid.clone().map(|g| {
+                (
+                    g,
+                    StreamKey::new(cfg.seed, Purpose::ActingPreference, a as u64),
+                )
+            }),
         };
         let schedule = schedule.clone();
         actors.push(tokio::spawn(async move {
@@ -237,6 +251,7 @@ pub async fn train(
             client: servers.first().client,
             cfg: cfg.clone(),
             dims: dims.clone(),
+            preference: grid.as_deref().map(PreferenceGrid::default_features),
             params: params_rx.clone(),
             schedule: schedule.clone(),
             dir: run_dir.join("videos"),
@@ -281,11 +296,15 @@ pub async fn train(
     }
     let learner = learner?;
 
+    let snapshot = learner.policy_snapshot();
+    drop(learner);
     let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
     policy
-        .load(&learner.policy_snapshot())
+        .load(&snapshot)
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
-    drop(learner);
+    if let Some(grid) = &grid {
+        policy = policy.at_preference(&grid.default_features());
+    }
     let FinalEvaluation {
         episodes: eval,
         video: eval_video,
@@ -298,6 +317,21 @@ pub async fn train(
         &run_dir,
     )
     .await?;
+    let front = match &grid {
+        Some(grid) if counters.interrupted.is_none() => Some(
+            front::conditioned_front(
+                &cfg,
+                &servers,
+                grid,
+                &dims,
+                &snapshot,
+                objectives.clone(),
+                &run_dir,
+            )
+            .await?,
+        ),
+        _ => None,
+    };
     let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let summary = TrainSummary {
         run_dir: run_dir.clone(),
@@ -318,6 +352,7 @@ pub async fn train(
         interrupted: counters.interrupted.clone(),
         eval_video,
         actor_servers: servers.actor_servers(),
+        front,
     };
     write_reports(&summary, &files)?;
     Ok(summary)

@@ -34,6 +34,8 @@ pub struct PeriodicContext {
     pub cfg: TrainConfig,
     /// Network sizes.
     pub dims: LearnerDims,
+    /// ε-conditioned runs: the preference features the videos are taken at.
+    pub preference: Option<Vec<f32>>,
     /// The learner's published parameters.
     pub params: watch::Receiver<Arc<PolicySnapshot>>,
     /// Env-step counter and stop flag.
@@ -62,6 +64,9 @@ pub async fn record_periodically(ctx: PeriodicContext, every: u64, options: Vide
         if let Err(e) = policy.load(&snapshot) {
             tracing::warn!(error = %e, "periodic video: cannot load the policy; no more videos");
             return;
+        }
+        if let Some(features) = &ctx.preference {
+            policy = policy.at_preference(features);
         }
         let path = ctx
             .dir

@@ -1,0 +1,75 @@
+//! `learner.conditioning`: MO-MPO conditioned on its preferences ε (issue 26). One
+//! policy pi(a | s, ε) and one set of critics Q_k(s, a, ε) learn the whole grid of
+//! preferences that a sweep would train one run each for; the temperatures eta_k are
+//! kept per grid point (`algo/preferences.rs`).
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::{ConfigError, check, invalid};
+
+/// The most grid points one conditioned learner keeps duals for.
+pub const MAX_GRID_POINTS: usize = 4096;
+
+/// Which preferences an ε-conditioned MO-MPO learner trains on and is evaluated at.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConditioningConfig {
+    /// Objective name -> the ε values it takes (each > 0). The grid is their product;
+    /// an objective not named keeps its fixed `learner.objectives[..].epsilon`. Every
+    /// episode of every env instance draws one grid point uniformly, acts with it and
+    /// stores it with its transitions (as input features `preference`); the run ends by
+    /// evaluating the deterministic policy at every grid point (`<run>/front/`).
+    pub epsilon: BTreeMap<String, Vec<f64>>,
+    /// Train every sampled snippet at a grid point drawn uniformly for it, instead of
+    /// the one its episode was collected with. Rewards do not depend on ε, so every
+    /// transition is data for every preference (hindsight relabelling, as CAPQL and
+    /// PD-MORL do with weights); Retrace's importance weights already correct for the
+    /// behaviour policy having acted with another ε.
+    #[serde(default = "default_relabel")]
+    pub relabel: bool,
+}
+
+fn default_relabel() -> bool {
+    true
+}
+
+impl ConditioningConfig {
+    /// Checks the grid against the learner's objective names.
+    pub fn validate(&self, objective_names: &[&str]) -> Result<(), ConfigError> {
+        check(
+            !self.epsilon.is_empty(),
+            "learner.conditioning.epsilon",
+            "at least one objective with its list of ε values",
+            &self.epsilon,
+        )?;
+        let mut points = 1usize;
+        for (name, values) in &self.epsilon {
+            let field = format!("learner.conditioning.epsilon.{name}");
+            if !objective_names.contains(&name.as_str()) {
+                return Err(invalid(
+                    &field,
+                    &format!("one of learner.objectives {objective_names:?}"),
+                    name,
+                ));
+            }
+            check(!values.is_empty(), &field, "a non-empty list", values)?;
+            check(
+                values.iter().all(|v| v.is_finite() && *v > 0.0),
+                &field,
+                "ε values > 0 (an objective without influence has no grid: give it epsilon = 0 in learner.objectives)",
+                values,
+            )?;
+            points = points.saturating_mul(values.len());
+        }
+        check(
+            points <= MAX_GRID_POINTS,
+            "learner.conditioning.epsilon",
+            &format!(
+                "a grid of at most {MAX_GRID_POINTS} points (the product of the lists' lengths)"
+            ),
+            points,
+        )
+    }
+}
