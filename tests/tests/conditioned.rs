@@ -1,0 +1,125 @@
+//! ε-conditioned MO-MPO end to end over a real server (issue 26): one run of
+//! `configs/smoke/dst-conditioned.toml` learns three ε_treasure / ε_time ratios, ends
+//! by writing its front, and `agent eval --epsilon` asks its policy for any preference.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use agent::env::connection::ConnectionConfig;
+use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::eval::evaluate_checkpoint_at;
+use agent::run_config::TrainConfig;
+use agent::train::{TrainOptions, train};
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_run_traces_a_front_over_its_preference_grid() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let address = [server.address().to_string()];
+    let runs = tempfile::tempdir().unwrap();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst-conditioned.toml");
+    let mut cfg = TrainConfig::load(&path).unwrap();
+    cfg.run.runs_dir = runs.path().to_path_buf();
+    let summary = train(cfg, &address, TrainOptions::default()).await.unwrap();
+    let front = summary.front.expect("a conditioned run measures its front");
+    let dir = summary.run_dir.join("front");
+    for file in ["points.csv", "front.csv", "summary.json", "front.png"] {
+        assert!(dir.join(file).exists(), "front/{file} missing");
+    }
+    // One point per grid value, in grid order, each with every objective's ε.
+    let settings: Vec<f64> = front.points.iter().map(|p| p.setting["treasure"]).collect();
+    assert_eq!(settings, vec![0.005, 0.05, 0.5]);
+    assert!(front.points.iter().all(|p| p.setting["time"] == 0.02));
+    // The preference is followed: a larger ε_treasure / ε_time never settles for a
+    // nearer treasure, and the ratios 0.25 and 25 end at different treasures (on DST
+    // the deterministic policy's treasure return names the treasure it reached).
+    let treasure: Vec<f64> = front.points.iter().map(|p| p.eval_return[1]).collect();
+    assert!(
+        treasure.windows(2).all(|w| w[1] >= w[0]),
+        "treasure reached against ε_treasure: {treasure:?}"
+    );
+    assert!(
+        treasure[2] > treasure[0],
+        "one policy for every ratio: {treasure:?}"
+    );
+    assert!(front.hypervolume > 0.0);
+
+    // `agent eval --epsilon`: the grid point gives the front's return; a preference
+    // off the grid is evaluated too; a name that is not conditioned is refused.
+    let connection = ConnectionConfig::default();
+    let at = |v: f64| BTreeMap::from([("treasure".to_string(), v)]);
+    let on_grid = evaluate_checkpoint_at(
+        &summary.run_dir,
+        Some(&at(0.5)),
+        &address,
+        &connection,
+        1,
+        None,
+    )
+    .await
+    .unwrap();
+    assert_eq!(on_grid.mean_return, front.points[2].eval_return);
+    let off_grid = evaluate_checkpoint_at(
+        &summary.run_dir,
+        Some(&at(0.2)),
+        &address,
+        &connection,
+        1,
+        None,
+    )
+    .await
+    .unwrap();
+    assert_eq!(off_grid.mean_return.len(), 2);
+    let time = BTreeMap::from([("time".to_string(), 0.1)]);
+    let err = evaluate_checkpoint_at(
+        &summary.run_dir,
+        Some(&time),
+        &address,
+        &connection,
+        1,
+        None,
+    )
+    .await
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("--epsilon") && err.contains("\"time\" is not a conditioned objective"),
+        "{err}"
+    );
+    server.stop().await.unwrap();
+}
+
+#[test]
+fn a_conditioned_config_names_its_grid_and_front() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst-conditioned.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let load = |text: &str| {
+        let file = tempfile::NamedTempFile::new().unwrap();
+        std::fs::write(file.path(), text).unwrap();
+        TrainConfig::load(file.path())
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    };
+    let cases = [
+        (
+            text.replace("treasure = [0.005, 0.05, 0.5]", "treasure = [0.0, 0.05]"),
+            "learner.conditioning.epsilon.treasure must be ε values > 0",
+        ),
+        (
+            text.replace("{ treasure = [", "{ gold = ["),
+            "learner.conditioning.epsilon.gold must be one of learner.objectives",
+        ),
+        (
+            text.replace("kind = \"mo_mpo\"", "kind = \"mo_vmpo\""),
+            "learner.conditioning must be used with algorithm.kind = \"mo_mpo\" only",
+        ),
+        (
+            text[..text.find("[front]").unwrap()].to_string(),
+            "front must be a [front] section",
+        ),
+    ];
+    for (bad, says) in cases {
+        let err = load(&bad);
+        assert!(err.contains(says), "wanted {says:?}, got {err}");
+    }
+}
