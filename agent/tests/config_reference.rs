@@ -25,6 +25,8 @@ const SOURCES: &[&str] = &[
     "src/config/shared.rs",
     "src/env/connection.rs",
     "src/sweep/config.rs",
+    "src/front.rs",
+    "src/config/conditioning.rs",
 ];
 
 /// What the committed reference is compared against.
@@ -35,9 +37,10 @@ const UPDATE: &str = "UPDATE_CONFIG_REFERENCE";
 
 /// The smallest run config: only the required fields.
 const RUN_MINIMAL: &str = "[env]\nid = \"\"\n";
-/// `RUN_MINIMAL` with one element of each array of tables, its required fields only,
-/// whose serialized form gives the elements' defaults.
-const RUN_ELEMENTS: &str = "[env]\nid = \"\"\n[[learner.objectives]]\nname = \"\"\nepsilon = 0.0\n";
+/// `RUN_MINIMAL` with one element of each array of tables and each optional section,
+/// their required fields only, whose serialized form gives their fields' defaults.
+const RUN_ELEMENTS: &str = "[env]\nid = \"\"\n[[learner.objectives]]\nname = \"\"\nepsilon = 0.0\n\
+     [learner.conditioning]\nepsilon = {}\n[front]\nreference_point = {}\n";
 /// The smallest sweep file.
 const SWEEP_MINIMAL: &str =
     "name = \"\"\nbase = \"\"\nreference_point = {}\n[grid]\nkind = \"epsilon\"\n";
@@ -465,7 +468,12 @@ impl Generator {
                     named.unwrap(),
                     format!("`[{full}]`"),
                     full.clone(),
-                    value.clone(),
+                    // An optional section is absent from the defaults: its fields'
+                    // defaults come from the elements' config, which sets it.
+                    value.clone().or_else(|| {
+                        (elements.roundtrip)(elements.elements)
+                            .and_then(|v| dotted(&v, &full).cloned())
+                    }),
                 )),
                 (Some("tagged"), _) => later.push((
                     named.unwrap(),

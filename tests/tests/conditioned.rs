@@ -22,7 +22,13 @@ async fn one_run_traces_a_front_over_its_preference_grid() {
     let summary = train(cfg, &address, TrainOptions::default()).await.unwrap();
     let front = summary.front.expect("a conditioned run measures its front");
     let dir = summary.run_dir.join("front");
-    for file in ["points.csv", "front.csv", "summary.json", "front.png"] {
+    for file in [
+        "points.csv",
+        "front.csv",
+        "summary.json",
+        "front.png",
+        "returns.png",
+    ] {
         assert!(dir.join(file).exists(), "front/{file} missing");
     }
     // One point per grid value, in grid order, each with every objective's ε.

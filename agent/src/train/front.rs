@@ -1,7 +1,8 @@
 //! The end of an ε-conditioned run: its deterministic policy evaluated at every point
 //! of its preference grid, measured and drawn as a sweep measures its runs
 //! (`<run>/front/`: `points.csv`, `front.csv`, `summary.json`, `front.png`, and the
-//! ratio plot when `[front]` asks for one).
+//! ratio plot when `[front]` asks for one; with one conditioned objective also
+//! `returns.png`, every objective's evaluation return against its ε).
 
 use std::path::Path;
 
@@ -10,6 +11,7 @@ use crate::algo::preferences::PreferenceGrid;
 use crate::env::pool::ServerPool;
 use crate::eval::evaluate;
 use crate::nets::{ActorPolicy, LearnerDims, PolicySnapshot};
+use crate::plot::{Figure, Series, SeriesKind};
 use crate::run_config::TrainConfig;
 use crate::sweep::{FrontReport, SweepPoint, SweepSummary};
 use tch::Device;
@@ -62,5 +64,41 @@ pub(super) async fn conditioned_front(
         true_front: &front.true_front,
         ratio_plot: front.ratio_plot.as_ref(),
     };
-    report.write(dir, objectives, points, started.elapsed().as_secs_f64())
+    let summary = report.write(dir, objectives, points, started.elapsed().as_secs_f64())?;
+    if let [axis] = grid.conditioned_names().as_slice() {
+        crate::plot::save(
+            &returns_figure(&name, axis, &summary),
+            &summary.dir.join("returns"),
+        )?;
+    }
+    Ok(summary)
+}
+
+/// Each objective's evaluation return against the one conditioned objective's ε.
+fn returns_figure(name: &str, axis: &str, front: &SweepSummary) -> Figure {
+    let series = front
+        .objectives
+        .iter()
+        .enumerate()
+        .map(|(k, objective)| {
+            let mut points: Vec<(f64, f64)> = front
+                .points
+                .iter()
+                .map(|p| (p.setting[axis], p.eval_return[k]))
+                .collect();
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            Series {
+                label: format!("{objective} return"),
+                points,
+                kind: SeriesKind::Line,
+            }
+        })
+        .collect();
+    Figure {
+        title: format!("{name}: evaluation returns against ε_{axis}"),
+        x_label: format!("ε_{axis}"),
+        y_label: "evaluation return".into(),
+        series,
+        log_x: true,
+    }
 }
