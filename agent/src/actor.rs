@@ -83,7 +83,9 @@ impl Conditioner {
 /// or with the features of `rows`' preferences appended (`None`: every instance's).
 fn observed(cond: &Option<Conditioner>, obs: Vec<f32>, rows: Option<&[usize]>) -> Vec<f32> {
     match cond {
+        // No rows (e.g. no final observations this step) stay no rows.
         None => obs,
+        Some(_) if obs.is_empty() => obs,
         Some(c) => {
             let prefs: Vec<usize> = match rows {
                 None => c.current.clone(),

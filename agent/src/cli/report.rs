@@ -69,13 +69,22 @@ pub(crate) fn train(s: &TrainSummary) {
     println!(
         "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg events.out.tfevents.* checkpoints/"
     );
+    if let Some(front) = &s.front {
+        front_table(front, "front", "grid points");
+    }
 }
 
 /// `agent sweep`'s table: every run, the spread across seeds, and the hypervolumes.
 pub(crate) fn sweep(s: &SweepSummary) {
+    front_table(s, "sweep", "runs");
+}
+
+/// A front's table (a sweep's `what` = "sweep" of runs, an ε-conditioned run's
+/// "front" of grid points): every point, the spread across seeds, the hypervolumes.
+fn front_table(s: &SweepSummary, what: &str, points: &str) {
     let names = s.objectives.join(", ");
     println!(
-        "\nsweep {} ({} runs, {:.0} s wall)",
+        "\n{what} {} ({} {points}, {:.0} s wall)",
         s.dir.display(),
         s.points.len(),
         s.wall_seconds
@@ -129,7 +138,7 @@ pub(crate) fn sweep(s: &SweepSummary) {
     }
     let reference = format_vector(&s.reference_point);
     println!(
-        "  hypervolume {:.2} (all runs; undiscounted, reference {reference}); EUM {:.3}",
+        "  hypervolume {:.2} (all {points}; undiscounted, reference {reference}); EUM {:.3}",
         s.hypervolume, s.expected_utility
     );
     if let (Some(best), Some(igd)) = (s.true_hypervolume, s.igd) {
