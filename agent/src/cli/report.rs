@@ -3,7 +3,7 @@
 
 use agent::eval::EvalReport;
 use agent::metrics::{format_value, format_vector};
-use agent::sweep::{SweepSummary, setting_label};
+use agent::sweep::{FrontSummary, setting_label};
 use agent::train::TrainSummary;
 
 /// `agent train`'s closing summary.
@@ -75,13 +75,13 @@ pub(crate) fn train(s: &TrainSummary) {
 }
 
 /// `agent sweep`'s table: every run, the spread across seeds, and the hypervolumes.
-pub(crate) fn sweep(s: &SweepSummary) {
+pub(crate) fn sweep(s: &FrontSummary) {
     front_table(s, "sweep", "runs");
 }
 
 /// A front's table (a sweep's `what` = "sweep" of runs, an ε-conditioned run's
 /// "front" of grid points): every point, the spread across seeds, the hypervolumes.
-fn front_table(s: &SweepSummary, what: &str, points: &str) {
+fn front_table(s: &FrontSummary, what: &str, points: &str) {
     let names = s.objectives.join(", ");
     println!(
         "\n{what} {} ({} {points}, {:.0} s wall)",

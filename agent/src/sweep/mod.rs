@@ -8,72 +8,20 @@
 //! configured, the Fig. 5-style plot of one objective's return against an ε ratio.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::time::{Instant, SystemTime};
 
 mod config;
-mod report;
-pub mod seeds;
 
-use config::invalid;
+pub use crate::front::{FrontPoint, FrontReport, FrontSummary, seeds};
 pub use config::{Grid, GridKind, RatioPlot, SweepConfig, Values, apply};
 
 use futures::StreamExt;
-use serde::Serialize;
 
 use crate::metrics::format_vector;
-use crate::pareto::{expected_utility, hypervolume, igd, non_dominated, simplex_weights};
 use crate::run_config::TrainConfig;
 use crate::run_name;
 use crate::train::{TrainError, TrainOptions, TrainSummary, train};
 use crate::video::{VideoOptions, VideoPlan};
-
-/// One trained and evaluated setting.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SweepPoint {
-    /// Objective name -> ε or weight.
-    pub setting: BTreeMap<String, f64>,
-    /// Seed of the run.
-    pub seed: u64,
-    /// Mean undiscounted evaluation return, in objective order.
-    pub eval_return: Vec<f64>,
-    /// Mean discounted evaluation return.
-    pub eval_discounted_return: Vec<f64>,
-    /// The run's directory.
-    pub run_dir: PathBuf,
-    /// Part of the non-dominated set.
-    pub on_front: bool,
-}
-
-/// What a sweep reports (also `summary.json`).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SweepSummary {
-    /// Output directory.
-    pub dir: PathBuf,
-    /// Objective names in reward order.
-    pub objectives: Vec<String>,
-    /// Every run.
-    pub points: Vec<SweepPoint>,
-    /// Reference point in objective order.
-    pub reference_point: Vec<f64>,
-    /// Hypervolume of the undiscounted evaluation returns of every run (the union
-    /// over seeds).
-    pub hypervolume: f64,
-    /// Hypervolume of each seed's points on its own.
-    pub seed_fronts: Vec<seeds::SeedFront>,
-    /// Per setting: median and range of the evaluation returns across seeds.
-    pub settings: Vec<seeds::SettingSpread>,
-    /// Expected utility over evenly spread weights (100 for K = 2).
-    pub expected_utility: f64,
-    /// `true_front` in objective order (empty when the config gives none).
-    pub true_front: Vec<Vec<f64>>,
-    /// Hypervolume of the true front (the most a sweep can reach), when given.
-    pub true_hypervolume: Option<f64>,
-    /// Inverted generational distance of the found returns to the true front, when given.
-    pub igd: Option<f64>,
-    /// Wall time of the whole sweep.
-    pub wall_seconds: f64,
-}
 
 /// `pain=0.9 task=0.1`: each value rounded to 12 decimals, so that a complemented weight
 /// (1 - 0.9) does not print as 0.09999999999999998.
@@ -92,7 +40,7 @@ pub async fn sweep(
     addresses: &[String],
     progress: bool,
     video: Option<&VideoOptions>,
-) -> Result<SweepSummary, TrainError> {
+) -> Result<FrontSummary, TrainError> {
     let started = Instant::now();
     let stem = format!("sweep__{}", sweep.name);
     let dir = run_name::create_run_dir(&base.run.runs_dir, &stem, SystemTime::now()).map_err(
@@ -170,9 +118,9 @@ pub async fn sweep(
         .first()
         .map(|(.., s)| s.objectives.clone())
         .unwrap_or_default();
-    let points: Vec<SweepPoint> = finished
+    let points: Vec<FrontPoint> = finished
         .into_iter()
-        .map(|(_, setting, seed, s)| SweepPoint {
+        .map(|(_, setting, seed, s)| FrontPoint {
             setting,
             seed,
             eval_return: s.eval_return,
@@ -188,74 +136,7 @@ pub async fn sweep(
         true_front: &sweep.true_front,
         ratio_plot: sweep.ratio_plot.as_ref(),
     };
-    report.write(dir, objectives, points, started.elapsed().as_secs_f64())
-}
-
-/// How a front is measured and drawn: a sweep file's settings, or an ε-conditioned
-/// run's `[front]`.
-#[derive(Debug, Clone, Copy)]
-pub struct FrontReport<'a> {
-    /// Title of the plots.
-    pub name: &'a str,
-    /// Hypervolume reference point, objective name -> value.
-    pub reference_point: &'a BTreeMap<String, f64>,
-    /// A known Pareto front, objective name -> values (may be empty).
-    pub true_front: &'a BTreeMap<String, Vec<f64>>,
-    /// The Fig. 5-style plot, when wanted.
-    pub ratio_plot: Option<&'a RatioPlot>,
-}
-
-impl FrontReport<'_> {
-    /// Marks the non-dominated points, measures the front (hypervolume, EUM, IGD) and
-    /// writes `points.csv`, `front.csv`, `summary.json` and the plots into `dir`.
-    pub fn write(
-        &self,
-        dir: PathBuf,
-        objectives: Vec<String>,
-        mut points: Vec<SweepPoint>,
-        wall_seconds: f64,
-    ) -> Result<SweepSummary, TrainError> {
-        let reference: Vec<f64> = objectives
-            .iter()
-            .map(|n| {
-                self.reference_point
-                    .get(n)
-                    .copied()
-                    .ok_or_else(|| invalid("reference_point", "a value per objective", n))
-            })
-            .collect::<Result<_, _>>()?;
-        let returns: Vec<Vec<f64>> = points.iter().map(|p| p.eval_return.clone()).collect();
-        for i in non_dominated(&returns) {
-            points[i].on_front = true;
-        }
-        let true_front: Vec<Vec<f64>> = match objectives
-            .iter()
-            .map(|n| self.true_front.get(n))
-            .collect::<Option<Vec<_>>>()
-        {
-            Some(columns) if !columns.is_empty() => (0..columns[0].len())
-                .map(|i| columns.iter().map(|c| c[i]).collect())
-                .collect(),
-            _ => Vec::new(),
-        };
-        let known = !true_front.is_empty();
-        let summary = SweepSummary {
-            dir,
-            hypervolume: hypervolume(&returns, &reference),
-            seed_fronts: seeds::seed_fronts(&points, &reference),
-            settings: seeds::setting_spreads(&points),
-            expected_utility: expected_utility(&returns, &simplex_weights(objectives.len(), 100)),
-            true_hypervolume: known.then(|| hypervolume(&true_front, &reference)),
-            igd: (known && !returns.is_empty()).then(|| igd(&returns, &true_front)),
-            true_front,
-            reference_point: reference,
-            objectives,
-            points,
-            wall_seconds,
-        };
-        report::write_outputs(self, &summary)?;
-        Ok(summary)
-    }
+    Ok(report.write(dir, objectives, points, started.elapsed().as_secs_f64())?)
 }
 
 #[cfg(test)]

@@ -10,10 +10,10 @@ use super::{TrainError, mean_of};
 use crate::algo::preferences::PreferenceGrid;
 use crate::env::pool::ServerPool;
 use crate::eval::evaluate;
+use crate::front::{FrontPoint, FrontReport, FrontSummary};
 use crate::nets::{ActorPolicy, LearnerDims, PolicySnapshot};
 use crate::plot::{Figure, Series, SeriesKind};
 use crate::run_config::TrainConfig;
-use crate::sweep::{FrontReport, SweepPoint, SweepSummary};
 use tch::Device;
 
 /// Evaluates `snapshot` at every grid point (`run.eval_episodes` episodes each) and
@@ -26,7 +26,7 @@ pub(super) async fn conditioned_front(
     snapshot: &PolicySnapshot,
     objectives: Vec<String>,
     run_dir: &Path,
-) -> Result<SweepSummary, TrainError> {
+) -> Result<FrontSummary, TrainError> {
     let front = cfg
         .front
         .as_ref()
@@ -41,7 +41,7 @@ pub(super) async fn conditioned_front(
             .map_err(|e| TrainError::Stopped(e.to_string()))?;
         let policy = policy.at_preference(&grid.features(g));
         let episodes = evaluate(&client, cfg, policy, cfg.run.eval_episodes).await?;
-        points.push(SweepPoint {
+        points.push(FrontPoint {
             setting: grid.setting(g),
             seed: cfg.seed,
             eval_return: mean_of(episodes.iter().map(|e| &e.episode_return)),
@@ -75,7 +75,7 @@ pub(super) async fn conditioned_front(
 }
 
 /// Each objective's evaluation return against the one conditioned objective's ε.
-fn returns_figure(name: &str, axis: &str, front: &SweepSummary) -> Figure {
+fn returns_figure(name: &str, axis: &str, front: &FrontSummary) -> Figure {
     let series = front
         .objectives
         .iter()

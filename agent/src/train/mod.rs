@@ -29,6 +29,7 @@ use crate::env::grpc::EnvClient;
 use crate::env::pool::{ActorServers, ServerPool};
 use crate::env::{Env, EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
+use crate::front::FrontSummary;
 use crate::learner::{LearnerContext, LearnerLoopError, run_learner};
 use crate::metrics::RunFiles;
 use crate::nets::ActorPolicy;
@@ -37,7 +38,6 @@ use crate::random::{Purpose, StreamKey};
 use crate::run_config::TrainConfig;
 use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
-use crate::sweep::SweepSummary;
 use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
 use futures::FutureExt;
 use std::panic::AssertUnwindSafe;
@@ -73,6 +73,9 @@ pub enum TrainError {
     /// Writing a figure failed.
     #[error(transparent)]
     Plot(#[from] PlotError),
+    /// Measuring or writing a front failed.
+    #[error(transparent)]
+    Front(#[from] crate::front::FrontError),
     /// Recording a video failed.
     #[error(transparent)]
     Video(#[from] crate::video::VideoError),
@@ -151,7 +154,7 @@ pub struct TrainSummary {
     pub actor_servers: Vec<ActorServers>,
     /// ε-conditioned runs: the front of the deterministic policy over the preference
     /// grid (also `<run>/front/`); the evaluation above is at the grid's middle point.
-    pub front: Option<SweepSummary>,
+    pub front: Option<FrontSummary>,
 }
 
 /// Run one training job against the servers `addresses` name (plain addresses, `dns:`

@@ -4,14 +4,13 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use super::{FrontReport, SweepSummary, invalid};
+use super::{FrontError, FrontReport, FrontSummary, invalid};
 use crate::metrics::write_json_atomic;
 use crate::pareto::attainment_surface;
 use crate::plot::{Figure, Series, SeriesKind};
-use crate::train::TrainError;
 
-pub(super) fn write_outputs(sweep: &FrontReport<'_>, s: &SweepSummary) -> Result<(), TrainError> {
-    let io = |path: PathBuf| move |source| TrainError::Io { path, source };
+pub(super) fn write_outputs(sweep: &FrontReport<'_>, s: &FrontSummary) -> Result<(), FrontError> {
+    let io = |path: PathBuf| move |source| FrontError::Io { path, source };
     let names: Vec<String> = s
         .points
         .first()
@@ -117,7 +116,7 @@ pub(super) fn write_outputs(sweep: &FrontReport<'_>, s: &SweepSummary) -> Result
 /// The first two objectives' returns: the region the found front dominates above the
 /// reference point (a staircase, which invents no trade-off between points), every run
 /// as a marker per seed, the reference point, and the true front when known.
-fn front_figure(name: &str, s: &SweepSummary) -> Figure {
+fn front_figure(name: &str, s: &FrontSummary) -> Figure {
     let xy = |p: &[f64]| (p[0], p[1]);
     let reference = xy(&s.reference_point);
     let all: Vec<(f64, f64)> = s.points.iter().map(|p| xy(&p.eval_return)).collect();

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::SweepPoint;
+use super::FrontPoint;
 use crate::pareto::hypervolume;
 
 /// One setting's evaluation returns across its seeds.
@@ -46,7 +46,7 @@ pub fn median(values: &[f64]) -> f64 {
 }
 
 /// Spread per setting, in the order settings first appear in `points`.
-pub fn setting_spreads(points: &[SweepPoint]) -> Vec<SettingSpread> {
+pub fn setting_spreads(points: &[FrontPoint]) -> Vec<SettingSpread> {
     // Settings in first-seen order, each with the indices of its points.
     let mut order: Vec<&BTreeMap<String, f64>> = Vec::new();
     for p in points {
@@ -80,7 +80,7 @@ pub fn setting_spreads(points: &[SweepPoint]) -> Vec<SettingSpread> {
 }
 
 /// Hypervolume of each seed's points, by seed.
-pub fn seed_fronts(points: &[SweepPoint], reference: &[f64]) -> Vec<SeedFront> {
+pub fn seed_fronts(points: &[FrontPoint], reference: &[f64]) -> Vec<SeedFront> {
     let mut by_seed: BTreeMap<u64, Vec<Vec<f64>>> = BTreeMap::new();
     for p in points {
         by_seed
@@ -101,8 +101,8 @@ pub fn seed_fronts(points: &[SweepPoint], reference: &[f64]) -> Vec<SeedFront> {
 mod tests {
     use super::*;
 
-    fn point(eps: f64, seed: u64, ret: [f64; 2]) -> SweepPoint {
-        SweepPoint {
+    fn point(eps: f64, seed: u64, ret: [f64; 2]) -> FrontPoint {
+        FrontPoint {
             setting: BTreeMap::from([("treasure".to_string(), eps)]),
             seed,
             eval_return: ret.to_vec(),
