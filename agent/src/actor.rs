@@ -346,6 +346,11 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
             let ended: Vec<usize> = step.episodes.iter().map(|e| e.env_index).collect();
             let finals = observed(&cond, step.final_observation.to_flat_f32(), Some(&ended));
             let mut draws = cond.as_ref().map(|c| c.draws.at(2 * acts));
+            // The grid point each ended episode acted with, before new ones are drawn.
+            let ended_with: Vec<usize> = ended
+                .iter()
+                .map(|&i| cond.as_ref().map_or(0, |c| c.current[i]))
+                .collect();
             let width = replay_actions.len() / b;
             let mut snippets = Vec::new();
             for i in 0..b {
@@ -391,12 +396,15 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 }
             }
             let env_steps = schedule.counters().env_steps + b as u64;
-            for episode in &step.episodes {
+            for (episode, &g) in step.episodes.iter().zip(&ended_with) {
                 let record = EpisodeRecord {
                     env_steps,
                     actor: id,
                     episode: episode.clone(),
                     wall_seconds: schedule.elapsed_seconds(),
+                    preference: cond
+                        .as_ref()
+                        .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
                 };
                 files
                     .episode(&record)

@@ -39,6 +39,9 @@ pub struct EpisodeRecord {
     pub episode: EpisodeSummary,
     /// Seconds since this `train` invocation began training (`Schedule::elapsed_seconds`).
     pub wall_seconds: f64,
+    /// ε-conditioned runs: the ε of each conditioned objective the episode acted with
+    /// (columns `epsilon_<name>`); empty otherwise.
+    pub preference: Vec<f64>,
 }
 
 fn append(path: &Path) -> std::io::Result<(BufWriter<File>, bool)> {
@@ -48,8 +51,13 @@ fn append(path: &Path) -> std::io::Result<(BufWriter<File>, bool)> {
 }
 
 impl RunFiles {
-    /// Open (or, when resuming, reopen for appending) the files of `dir`.
-    pub fn open(dir: &Path, objective_names: &[String]) -> std::io::Result<Self> {
+    /// Open (or, when resuming, reopen for appending) the files of `dir`;
+    /// `preference_names`: the conditioned objectives of an ε-conditioned run.
+    pub fn open(
+        dir: &Path,
+        objective_names: &[String],
+        preference_names: &[String],
+    ) -> std::io::Result<Self> {
         std::fs::create_dir_all(dir)?;
         let (mut episodes, existed) = append(&dir.join("episodes.csv"))?;
         if !existed {
@@ -67,6 +75,7 @@ impl RunFiles {
             );
             header.push("terminated".into());
             header.push("wall_seconds".into());
+            header.extend(preference_names.iter().map(|n| format!("epsilon_{n}")));
             writeln!(episodes, "{}", header.join(","))?;
         }
         let (learner, _) = append(&dir.join("learner.jsonl"))?;
@@ -102,6 +111,7 @@ impl RunFiles {
         row.extend(e.discounted_return.iter().map(|v| format!("{v}")));
         row.push(e.terminated.to_string());
         row.push(format!("{:.3}", record.wall_seconds));
+        row.extend(record.preference.iter().map(|v| v.to_string()));
         {
             let mut w = self.episodes.lock().unwrap_or_else(|p| p.into_inner());
             writeln!(w, "{}", row.join(","))?;

@@ -31,6 +31,16 @@ async fn one_run_traces_a_front_over_its_preference_grid() {
     ] {
         assert!(dir.join(file).exists(), "front/{file} missing");
     }
+    // Every training episode says which preference it acted with.
+    let episodes = std::fs::read_to_string(summary.run_dir.join("episodes.csv")).unwrap();
+    let header = episodes.lines().next().unwrap();
+    assert!(header.ends_with(",epsilon_treasure"), "{header}");
+    let drawn: std::collections::BTreeSet<&str> = episodes
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap())
+        .collect();
+    assert_eq!(drawn, ["0.005", "0.05", "0.5"].into_iter().collect());
     // One point per grid value, in grid order, each with every objective's ε.
     let settings: Vec<f64> = front.points.iter().map(|p| p.setting["treasure"]).collect();
     assert_eq!(settings, vec![0.005, 0.05, 0.5]);

@@ -169,6 +169,15 @@ impl PreferenceGrid {
         Ok(eps)
     }
 
+    /// ε of the conditioned objectives at grid point `g` (the order of
+    /// `conditioned_names`).
+    pub fn conditioned_epsilon(&self, g: usize) -> Vec<f64> {
+        self.axes
+            .iter()
+            .map(|a| self.points[g][a.objective])
+            .collect()
+    }
+
     /// Names of the conditioned objectives, in E-step order.
     pub fn conditioned_names(&self) -> Vec<&str> {
         self.axes

@@ -2,8 +2,10 @@
 //! of its preference grid, measured and drawn as a sweep measures its runs
 //! (`<run>/front/`: `points.csv`, `front.csv`, `summary.json`, `front.png`, and the
 //! ratio plot when `[front]` asks for one; with one conditioned objective also
-//! `returns.png`, every objective's evaluation return against its ε).
+//! `returns.png`: every objective's evaluation return against its ε, and the mean
+//! training return of the run's last quarter of episodes at each ε).
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::{TrainError, mean_of};
@@ -66,12 +68,63 @@ pub(super) async fn conditioned_front(
     };
     let summary = report.write(dir, objectives, points, started.elapsed().as_secs_f64())?;
     if let [axis] = grid.conditioned_names().as_slice() {
-        crate::plot::save(
-            &returns_figure(&name, axis, &summary),
-            &summary.dir.join("returns"),
-        )?;
+        let path = run_dir.join("episodes.csv");
+        let episodes = std::fs::read_to_string(&path).map_err(|source| TrainError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        let mut figure = returns_figure(&name, axis, &summary);
+        figure
+            .series
+            .extend(training_returns(&episodes, axis, &summary.objectives));
+        crate::plot::save(&figure, &summary.dir.join("returns"))?;
     }
     Ok(summary)
+}
+
+/// Per objective, the mean training return at each ε of the conditioned objective
+/// `axis`, over the episodes that ended in the last quarter of the run's env steps
+/// (`episodes.csv`, columns `env_steps`, `return_<objective>`, `epsilon_<axis>`).
+fn training_returns(csv: &str, axis: &str, objectives: &[String]) -> Vec<Series> {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name);
+    let (Some(steps), Some(eps)) = (column("env_steps"), column(&format!("epsilon_{axis}"))) else {
+        return Vec::new();
+    };
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse().unwrap_or(f64::NAN))
+                .collect()
+        })
+        .filter(|r: &Vec<f64>| r.len() == header.len())
+        .collect();
+    let last = rows.iter().map(|r| r[steps]).fold(0.0, f64::max);
+    // Grid values are exact copies of one another, so their bits group them.
+    let mut by_eps: BTreeMap<u64, Vec<&Vec<f64>>> = BTreeMap::new();
+    for r in rows.iter().filter(|r| r[steps] >= 0.75 * last) {
+        by_eps.entry(r[eps].to_bits()).or_default().push(r);
+    }
+    objectives
+        .iter()
+        .filter_map(|objective| {
+            let col = column(&format!("return_{objective}"))?;
+            let mut points: Vec<(f64, f64)> = by_eps
+                .iter()
+                .map(|(bits, rows)| {
+                    let mean = rows.iter().map(|r| r[col]).sum::<f64>() / rows.len() as f64;
+                    (f64::from_bits(*bits), mean)
+                })
+                .collect();
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            Some(Series {
+                label: format!("{objective} training return (last quarter)"),
+                points,
+                kind: SeriesKind::Markers,
+            })
+        })
+        .collect()
 }
 
 /// Each objective's evaluation return against the one conditioned objective's ε.
@@ -88,17 +141,38 @@ fn returns_figure(name: &str, axis: &str, front: &FrontSummary) -> Figure {
                 .collect();
             points.sort_by(|a, b| a.0.total_cmp(&b.0));
             Series {
-                label: format!("{objective} return"),
+                label: format!("{objective} evaluation return"),
                 points,
                 kind: SeriesKind::Line,
             }
         })
         .collect();
     Figure {
-        title: format!("{name}: evaluation returns against ε_{axis}"),
+        title: format!("{name}: returns against ε_{axis}"),
         x_label: format!("ε_{axis}"),
-        y_label: "evaluation return".into(),
+        y_label: "episode return".into(),
         series,
         log_x: true,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn training_returns_average_the_last_quarter_per_epsilon() {
+        // Rows at env steps 100 and 200 are before the last quarter (>= 300 of 400).
+        let csv = "env_steps,actor,return_a,return_b,wall_seconds,epsilon_x\n\
+                   100,0,-9,-9,0.1,0.5\n\
+                   300,0,-1,-2,0.1,0.5\n\
+                   400,0,-3,-4,0.1,0.5\n\
+                   400,0,-5,-6,0.1,0.05\n\
+                   200,0,-9,-9,0.1,0.05\n";
+        let series = training_returns(csv, "x", &["a".into(), "b".into()]);
+        assert_eq!(series.len(), 2);
+        assert_eq!(series[0].points, vec![(0.05, -5.0), (0.5, -2.0)]);
+        assert_eq!(series[1].points, vec![(0.05, -6.0), (0.5, -3.0)]);
+        assert!(training_returns(csv, "y", &["a".into()]).is_empty());
     }
 }

@@ -180,7 +180,14 @@ pub async fn train(
         counters,
     } = open_run(&cfg, options.resume.as_deref(), &dims, device)?;
     let grid = learner.preference_grid().cloned().map(Arc::new);
-    let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
+    let conditioned: Vec<String> = grid.as_ref().map_or_else(Vec::new, |g| {
+        g.conditioned_names()
+            .into_iter()
+            .map(String::from)
+            .collect()
+    });
+    let files =
+        Arc::new(RunFiles::open(&run_dir, &objectives, &conditioned).map_err(io(&run_dir))?);
     if options.resume.is_some() {
         files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
     }
