@@ -9,13 +9,13 @@ use tch::{Device, Tensor};
 
 use crate::actor::ActionMap;
 use crate::algo::Learner;
+use crate::checkpoint::run::latest_checkpoint;
 use crate::config::ConfigError;
 use crate::env::connection::ConnectionConfig;
 use crate::env::grpc::{EnvClient, RemoteEnv};
 use crate::env::pool::ServerPool;
 use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
-use crate::learner::latest_checkpoint;
 use crate::nets::{Acting, ActorPolicy, LearnerDims};
 use crate::run_config::TrainConfig;
 use crate::train::{TrainError, make_options, mean_of, probe_spec};

@@ -121,15 +121,6 @@ impl RunFiles {
             .collect()
     }
 
-    /// Tell TensorBoard that a resumed run continues from `env_steps`: what the earlier
-    /// process logged beyond it (after its last checkpoint) is superseded.
-    pub fn resumed_at(&self, env_steps: u64) -> std::io::Result<()> {
-        self.events
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .restart(env_steps)
-    }
-
     /// The TensorBoard event file this process writes (errors name it).
     pub fn events_path(&self) -> PathBuf {
         self.events

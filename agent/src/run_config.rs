@@ -83,6 +83,12 @@ pub struct RunConfig {
     pub publish_period: u64,
     /// Learner steps between checkpoints (one is also written at exit).
     pub checkpoint_period: u64,
+    /// Off-policy: checkpoints hold the replay's contents (appended as segments under
+    /// `<run>/replay/`), so a resume samples from the replay the run had. `false`
+    /// keeps checkpoints small; a resume then refills `min_replay_transitions` and
+    /// goes on at the ratio from there (no catch-up burst). On-policy: the queued
+    /// unrolls (at most about a batch) are kept or, with `false`, dropped.
+    pub checkpoint_replay: bool,
     /// Learner steps between metric records.
     pub log_period: u64,
     /// Episodes of the final evaluation (deterministic policy).
@@ -106,6 +112,7 @@ impl Default for RunConfig {
             min_replay_transitions: 1_000,
             publish_period: 1,
             checkpoint_period: 1_000,
+            checkpoint_replay: true,
             log_period: 50,
             eval_episodes: 10,
             runs_dir: PathBuf::from("runs"),
@@ -240,9 +247,104 @@ impl TrainConfig {
         self.learner.validate()
     }
 
+    /// Refuse what a resumed run may not change: every field but
+    /// [`RESUMABLE_FIELDS`] must be as in `stored` (the run's `config.toml`); the
+    /// error names the first that is not, with both values.
+    pub fn check_resume_changes(&self, stored: &TrainConfig) -> Result<(), ConfigError> {
+        let as_value = |cfg: &TrainConfig| {
+            toml::Value::try_from(cfg).map_err(|e| ConfigError::Invalid {
+                field: "config".into(),
+                requirement: "representable as TOML".into(),
+                got: e.to_string(),
+            })
+        };
+        // The stored config with this one's resumable fields must be this one.
+        let mut allowed = stored.clone();
+        allowed.copy_resumable(self);
+        match first_difference("", &as_value(&allowed)?, &as_value(self)?) {
+            Some(d) => Err(ConfigError::Invalid {
+                field: d.path,
+                requirement: format!(
+                    "unchanged when resuming: the run has {} (a resumed run may change only {})",
+                    d.old,
+                    RESUMABLE_FIELDS.join(", ")
+                ),
+                got: d.new,
+            }),
+            None => Ok(()),
+        }
+    }
+
+    fn copy_resumable(&mut self, from: &TrainConfig) {
+        self.run.total_env_steps = from.run.total_env_steps;
+        self.run.log_period = from.run.log_period;
+        self.run.checkpoint_period = from.run.checkpoint_period;
+        self.run.checkpoint_replay = from.run.checkpoint_replay;
+        self.run.eval_episodes = from.run.eval_episodes;
+        self.env.servers = from.env.servers.clone();
+        self.env.connection = from.env.connection.clone();
+        self.learner.device = from.learner.device;
+    }
+
     /// Short algorithm name for run directories and tables.
     pub fn algo_name(&self) -> &'static str {
         self.learner.algorithm.short_name()
+    }
+}
+
+/// What `--set` (and the flags) may change on `--resume`: the budget, logging and
+/// checkpoint periods, the final evaluation's length, and where the run finds its
+/// servers and device. Everything else would make the continuation another run.
+pub const RESUMABLE_FIELDS: &[&str] = &[
+    "run.total_env_steps",
+    "run.log_period",
+    "run.checkpoint_period",
+    "run.checkpoint_replay",
+    "run.eval_episodes",
+    "env.servers",
+    "env.connection",
+    "learner.device",
+];
+
+/// Where two configs first differ, with both values as TOML.
+#[derive(Debug)]
+struct Difference {
+    path: String,
+    old: String,
+    new: String,
+}
+
+fn first_difference(path: &str, old: &toml::Value, new: &toml::Value) -> Option<Difference> {
+    let join = |key: &str| {
+        if path.is_empty() {
+            key.to_string()
+        } else {
+            format!("{path}.{key}")
+        }
+    };
+    match (old, new) {
+        (toml::Value::Table(a), toml::Value::Table(b)) => {
+            let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+            keys.into_iter().find_map(|k| match (a.get(k), b.get(k)) {
+                (Some(x), Some(y)) => first_difference(&join(k), x, y),
+                (x, y) => Some(Difference {
+                    path: join(k),
+                    old: x.map_or("nothing".into(), ToString::to_string),
+                    new: y.map_or("nothing".into(), ToString::to_string),
+                }),
+            })
+        }
+        (toml::Value::Array(a), toml::Value::Array(b)) if a.len() == b.len() => a
+            .iter()
+            .zip(b)
+            .enumerate()
+            .find_map(|(i, (x, y))| first_difference(&join(&i.to_string()), x, y)),
+        _ if old == new => None,
+        _ => Some(Difference {
+            path: path.to_string(),
+            old: old.to_string(),
+            new: new.to_string(),
+        }),
     }
 }
 

@@ -33,6 +33,7 @@ use crate::metrics::RunFiles;
 use crate::nets::ActorPolicy;
 use crate::plot::PlotError;
 use crate::random::{Purpose, StreamKey};
+use crate::resume::Checkpointer;
 use crate::run_config::TrainConfig;
 use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
@@ -168,13 +169,23 @@ pub async fn train(
         run_dir,
         learner,
         counters,
+        resumed,
     } = open_run(&cfg, options.resume.as_deref(), &dims, device)?;
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
-    if options.resume.is_some() {
-        files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
-    }
     let layout = snippet_layout(&cfg, &dims, objectives.len());
-    let schedule = Arc::new(schedule_for(&cfg, layout, &objectives, counters)?);
+    let first_acts: Vec<u64> = counters.actors.iter().map(|a| a.acts).collect();
+    let resumed_from = resumed.as_ref().map(|p| (run_dir.as_path(), p));
+    let schedule = Arc::new(schedule_for(
+        &cfg,
+        layout,
+        &objectives,
+        counters,
+        resumed_from,
+    )?);
+    let segments_end = resumed
+        .as_ref()
+        .and_then(|p| p.replay.as_ref())
+        .map_or(0, |r| r.inserted);
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
     let latest = Arc::new(Mutex::new(None));
 
@@ -188,6 +199,7 @@ pub async fn train(
             checkpoint_period: cfg.run.checkpoint_period,
             log_period: cfg.run.log_period,
             latest: latest.clone(),
+            checkpointer: Checkpointer::new(files.clone(), cfg.run.checkpoint_replay, segments_end),
         };
         std::thread::Builder::new()
             .name("learner".into())
@@ -211,6 +223,8 @@ pub async fn train(
             },
             policy,
             sampling: StreamKey::new(cfg.seed, Purpose::Acting, a as u64),
+            first_act: first_acts.get(a).copied().unwrap_or(0),
+            env_seeds: StreamKey::new(cfg.seed, Purpose::EnvSeeds, a as u64),
             params: params_rx.clone(),
             layout,
             schedule: schedule.clone(),
