@@ -9,10 +9,10 @@
 //!   learner_steps_per_env_step` env steps of them);
 //! - `no_replay`: a checkpoint with `run.checkpoint_replay = false`.
 //!
-//! Each time is the median of 5 writes to a temporary directory (page cache, no fsync
-//! of the segments). The snippets' values do not matter: safetensors stores raw f32.
+//! Each time is the median of `--reps` (5) writes to a temporary directory (page
+//! cache, no fsync of the segments). The snippets' values do not matter: safetensors stores raw f32.
 //!
-//! Run: `cargo bench -p agent --bench checkpoint_cost [-- --presets dst,pendulum,humanoid-run]`
+//! Run: `cargo bench -p agent --bench checkpoint_cost [-- --presets dst,pendulum,humanoid-run --reps 5]`
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
 mod common;
@@ -118,8 +118,8 @@ fn measure(preset: &str) {
     };
 
     let (mut first, mut incremental, mut no_replay) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut learner_bytes, mut replay_bytes, mut segment_bytes) = (0, 0, 0);
-    for _ in 0..5 {
+    let (mut learner_bytes, mut whole_bytes, mut segment_bytes) = (0, 0, 0);
+    for _ in 0..common::arg("--reps", 5) {
         let dir = tempfile::tempdir().unwrap();
         let mut replay = SnippetReplay::new(layout, capacity, 0);
         for j in 0..held {
@@ -132,7 +132,7 @@ fn measure(preset: &str) {
         let ckpt = checkpointer.save(&learner, &schedule).unwrap();
         first.push(t0.elapsed().as_secs_f64() * 1e3);
         learner_bytes = bytes_under(&ckpt);
-        let whole = bytes_under(&dir.path().join("replay"));
+        whole_bytes = bytes_under(&dir.path().join("replay"));
         let step = ActorStep {
             actor: 0,
             acts: 1,
@@ -144,8 +144,7 @@ fn measure(preset: &str) {
         let t0 = Instant::now();
         checkpointer.save(&learner, &schedule).unwrap();
         incremental.push(t0.elapsed().as_secs_f64() * 1e3);
-        replay_bytes = bytes_under(&dir.path().join("replay"));
-        segment_bytes = replay_bytes.saturating_sub(whole);
+        segment_bytes = bytes_under(&dir.path().join("replay")).saturating_sub(whole_bytes);
 
         let small = tempfile::tempdir().unwrap();
         let files = Arc::new(RunFiles::open(small.path(), &objectives).unwrap());
@@ -159,7 +158,7 @@ fn measure(preset: &str) {
          {per_checkpoint} new snippets per checkpoint ({:.2} MiB)",
         mib(learner_bytes),
         layout.length,
-        mib(replay_bytes),
+        mib(whole_bytes),
         mib(segment_bytes),
     );
     println!(
