@@ -6,7 +6,8 @@
 //! - `learner.jsonl`: learner statistics every `log_period` learner steps;
 //! - `events.out.tfevents.*`: the same figures for TensorBoard, every chart by env
 //!   step (training returns, learner statistics, throughput, final evaluation returns);
-//! - `checkpoints/`, `summary.json`, `curves.{png,svg}` (written by `train`).
+//! - `checkpoints/`, `replay/` (the checkpoints' replay segments), `summary.json`,
+//!   `curves.{png,svg}` (written by `train`).
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Write};
