@@ -24,7 +24,7 @@ use crate::checkpoint::run::{
     discard_after, latest_checkpoint, load_replay, write_run_checkpoint,
 };
 use crate::metrics::RunFiles;
-use crate::replay::SnippetReplay;
+use crate::replay::{Snippet, SnippetLayout, SnippetReplay};
 use crate::schedule::Schedule;
 
 const EVENTS_PREFIX: &str = "events.out.tfevents.";
@@ -67,7 +67,7 @@ impl Checkpointer {
         let origin = schedule.origin();
         // Under the schedule's lock no actor is between its replay insert and its log
         // rows, so counters, replay and file lengths agree.
-        let (progress, layout, start, snippets) = schedule.snapshot(|c, replay| {
+        let snapshot = schedule.snapshot(|c, replay| {
             self.files.flush().map_err(io(&dir))?;
             let logs = log_lengths(&dir)?;
             let state = self.replay.then(|| ReplayState {
@@ -93,19 +93,35 @@ impl Checkpointer {
                 replay: state,
                 logs,
             };
-            Ok::<_, CheckpointError>((progress, replay.layout(), start, snippets))
+            Ok::<_, CheckpointError>(Snapshot {
+                progress,
+                layout: replay.layout(),
+                start,
+                snippets,
+            })
         })?;
         let new = NewSnippets {
-            layout,
-            start,
-            snippets: &snippets,
+            layout: snapshot.layout,
+            start: snapshot.start,
+            snippets: &snapshot.snippets,
         };
-        let ckpt = write_run_checkpoint(&dir, learner, &progress, self.replay.then_some(new))?;
+        let progress = &snapshot.progress;
+        let ckpt = write_run_checkpoint(&dir, learner, progress, self.replay.then_some(new))?;
         if let Some(state) = &progress.replay {
             self.segments_end = state.inserted;
         }
         Ok(ckpt)
     }
+}
+
+/// The run's state taken under the schedule's lock.
+struct Snapshot {
+    progress: RunProgress,
+    layout: SnippetLayout,
+    /// Number of the first snippet not yet in a segment.
+    start: u64,
+    /// The snippets from `start` on, for the next segment.
+    snippets: Vec<Snippet>,
 }
 
 /// Bytes of each log file in `dir` now.

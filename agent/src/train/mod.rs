@@ -174,13 +174,13 @@ pub async fn train(
     let files = Arc::new(RunFiles::open(&run_dir, &objectives).map_err(io(&run_dir))?);
     let layout = snippet_layout(&cfg, &dims, objectives.len());
     let first_acts: Vec<u64> = counters.actors.iter().map(|a| a.acts).collect();
-    let resumed_from = resumed.as_ref().map(|p| (run_dir.as_path(), p));
     let schedule = Arc::new(schedule_for(
         &cfg,
         layout,
         &objectives,
         counters,
-        resumed_from,
+        &run_dir,
+        resumed.as_ref(),
     )?);
     let segments_end = resumed
         .as_ref()

@@ -107,7 +107,8 @@ pub(super) fn schedule_for(
     layout: SnippetLayout,
     objectives: &[String],
     counters: Counters,
-    resumed: Option<(&Path, &RunProgress)>,
+    run_dir: &Path,
+    resumed: Option<&RunProgress>,
 ) -> Result<Schedule, TrainError> {
     let settings = cfg.learner.shared();
     let (capacity, pace) = if layout.on_policy {
@@ -129,7 +130,7 @@ pub(super) fn schedule_for(
     let mut solve = SolveTracker::new(&cfg.run.solve_threshold, objectives)?;
     solve.stop_on_solve = cfg.run.stop_on_solve;
     let mut origin = PaceOrigin::default();
-    if let Some((run_dir, progress)) = resumed {
+    if let Some(progress) = resumed {
         solve.restore(progress.solve.clone());
         origin = restore_schedule(run_dir, progress, &mut replay)?;
     }
