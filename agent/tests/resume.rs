@@ -1,11 +1,13 @@
 //! `--resume` continues a run: after kill -9 it reaches its budget with exact counters
 //! and every log row once (learner.jsonl, episodes.csv, TensorBoard); resuming one
-//! checkpoint twice gives the same learner.jsonl; `--set` of a field a running run
-//! may not change is refused. Runs the real CLI binary against a real env_server.
+//! checkpoint twice gives the same learner.jsonl; a checkpoint without replay resumes
+//! without a catch-up burst; `--set` of a field a running run may not change is
+//! refused. Runs the real CLI binary against a real env_server.
 //!
-//! What is not compared: a resumed run against an uninterrupted one. Env sessions
-//! cannot be saved, so a resume starts new episodes (seeded from the act counter)
-//! and the two runs see different transitions from the resume on (resume.rs).
+//! A resumed run matches the uninterrupted one only up to its actor's first env step:
+//! env sessions cannot be saved, so a resume starts new episodes (seeded from the act
+//! counter) and the two runs see different transitions from there on (resume.rs).
+//! The kill test compares the learner steps in between.
 
 mod cli;
 
@@ -251,6 +253,39 @@ async fn resuming_one_checkpoint_twice_logs_the_same_rows() {
     assert_eq!(a, b, "learner.jsonl differs between two resumes");
     assert_eq!(episode_rows(&copies[0]), episode_rows(&copies[1]));
     assert_eq!(summary(&copies[0])["env_steps"].as_u64().unwrap(), 3000);
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_resume_without_replay_refills_and_takes_no_catch_up_burst() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (runs, config) = smoke_dst(dir.path());
+    let status = agent_cmd(&["train", "--config", config.to_str().unwrap()])
+        .args(["--server", server.address(), "--total-env-steps", "2000"])
+        .args(["--set", "run.checkpoint_replay=false"])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let run = run_dir_in(&runs).unwrap();
+    let (_, before) = latest_checkpoint(&run).unwrap();
+    assert!(before.replay.is_none() && !run.join("replay").exists());
+    // (2000 - 500) * 0.25.
+    assert_eq!(before.learner_steps, 375);
+    resume(&run, server.address(), &["--total-env-steps", "3000"]);
+    // From the resume the pace counts afresh: 500 transitions to refill, then 0.25
+    // learner steps per env step: 375 + (3000 - 2000 - 500) * 0.25 = 500, where
+    // counting from zero would allow (3000 - 500) * 0.25 = 625, 125 of them at once.
+    let (_, after) = latest_checkpoint(&run).unwrap();
+    assert_eq!(after.learner_steps, 500);
+    for row in learner_rows(&run) {
+        let step = row["learner_step"].as_u64().unwrap();
+        let env_steps = row["env_steps"].as_u64().unwrap();
+        if step > 375 {
+            let allowed = 375 + (env_steps.saturating_sub(2500) as f64 * 0.25) as u64;
+            assert!(step <= allowed, "step {step} at {env_steps} env steps");
+        }
+    }
     server.stop().await.unwrap();
 }
 
