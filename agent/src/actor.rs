@@ -24,7 +24,7 @@ use crate::nets::{Acting, ActionBounds, ActorPolicy, PolicySnapshot};
 use crate::random::StreamKey;
 use crate::replay::SnippetLayout;
 use crate::replay::adder::{AdderStep, SnippetAdder};
-use crate::schedule::Schedule;
+use crate::schedule::{ActorStep, Schedule};
 use crate::spec::Space;
 
 /// What one actor needs.
@@ -43,6 +43,11 @@ pub struct ActorContext {
     /// The actor's sampling stream (`random::Purpose::Acting`, index = actor number);
     /// its counter is the actor's step number.
     pub sampling: StreamKey,
+    /// Act calls already made (a resumed run's count, else 0).
+    pub first_act: u64,
+    /// Seeds of sessions made after act 0 (`random::Purpose::EnvSeeds`): a resumed
+    /// run's envs continue with new episodes instead of repeating its first ones.
+    pub env_seeds: StreamKey,
     /// Latest published policy parameters.
     pub params: watch::Receiver<Arc<PolicySnapshot>>,
     /// Snippet sizes of the replay.
@@ -165,6 +170,17 @@ struct Sessions<'a> {
     layout: SnippetLayout,
     schedule: &'a Schedule,
     total_env_steps: u64,
+    env_seeds: StreamKey,
+}
+
+/// The session's options at act `acts`: the run's seeds at its start, then seeds
+/// drawn from the actor's `EnvSeeds` stream at the act count.
+fn session_options(ctx: &Sessions<'_>, acts: u64) -> MakeOptions {
+    let mut make = ctx.make.clone();
+    if acts > 0 {
+        make.seed = Some(ctx.env_seeds.seed_at(acts));
+    }
+    make
 }
 
 async fn start(
@@ -173,7 +189,7 @@ async fn start(
     cond: &mut Option<Conditioner>,
     acts: u64,
 ) -> Result<Live, EnvError> {
-    let mut env = client.make(ctx.make).await?;
+    let mut env = client.make(&session_options(ctx, acts)).await?;
     // One stream per session: about 0.2 ms less per step than unary calls (issue 2's
     // bench). A broken stream closes the session on the server; `restart` makes it again.
     env.use_stream();
@@ -270,6 +286,8 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         make,
         mut policy,
         sampling,
+        first_act,
+        env_seeds,
         mut params,
         layout,
         schedule,
@@ -284,6 +302,7 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         layout,
         schedule: &schedule,
         total_env_steps,
+        env_seeds,
     };
     let b = make.num_envs;
     let (o, k) = (layout.obs_dim, layout.num_rewards);
@@ -293,7 +312,7 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         current: vec![0; b],
     });
     let mut on = server;
-    let mut acts = 0u64;
+    let mut acts = first_act;
     let mut live = match start(&sessions, &on.client, &mut cond, acts).await {
         Ok(live) => live,
         // The server went away between the pool's connect and this session.
@@ -310,6 +329,9 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     let result: Result<(), EnvError> = async {
         let map = ActionMap::new(&live.env.spec().action_space)?;
         loop {
+            // Waiting before acting (not after) makes a resumed actor wait, as the
+            // stopped one was waiting, for the learner steps its checkpoint allowed.
+            schedule.wait_for_learner().await;
             if params.has_changed().unwrap_or(false) {
                 let snapshot = params.borrow_and_update().clone();
                 policy
@@ -387,34 +409,34 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 Some(_) => observed(&cond, next_env, None),
                 None => next,
             };
-            {
-                let mut replay = schedule.replay.lock().unwrap_or_else(|e| e.into_inner());
-                for s in snippets {
-                    replay
-                        .insert(s)
-                        .map_err(|e| EnvError::Process(e.to_string()))?;
-                }
-            }
-            let env_steps = schedule.counters().env_steps + b as u64;
-            for (episode, &g) in step.episodes.iter().zip(&ended_with) {
-                let record = EpisodeRecord {
-                    env_steps,
-                    actor: id,
-                    episode: episode.clone(),
-                    wall_seconds: schedule.elapsed_seconds(),
-                    preference: cond
-                        .as_ref()
-                        .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
-                };
-                files
-                    .episode(&record)
-                    .map_err(|e| EnvError::Process(format!("episodes.csv: {e}")))?;
-            }
-            schedule.add_env_steps(
-                b as u64,
-                step.episodes.into_iter().map(|e| e.episode_return),
-            );
-            schedule.wait_for_learner().await;
+            let returns = step.episodes.iter().map(|e| e.episode_return.clone());
+            let actor_step = ActorStep {
+                actor: id,
+                acts,
+                env_steps: b as u64,
+                snippets,
+                episode_returns: returns.collect(),
+            };
+            let wall_seconds = schedule.elapsed_seconds();
+            let log = |env_steps: u64| {
+                step.episodes
+                    .iter()
+                    .zip(&ended_with)
+                    .try_for_each(|(episode, &g)| {
+                        files.episode(&EpisodeRecord {
+                            env_steps,
+                            actor: id,
+                            episode: episode.clone(),
+                            wall_seconds,
+                            preference: cond
+                                .as_ref()
+                                .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
+                        })
+                    })
+            };
+            schedule
+                .commit(actor_step, log)
+                .map_err(|e| EnvError::Process(e.to_string()))?;
         }
         Ok(())
     }

@@ -1,41 +1,24 @@
 //! The learner loop (Algorithm 3's outer loop): sample snippets, take a learner
 //! step, publish the policy to the actors, log, and checkpoint.
 //!
-//! Runs on its own OS thread (libtorch calls block). Checkpoints go to
-//! `<run>/checkpoints/step_<n>/` (the learner state, written atomically by
-//! `checkpoint.rs`) plus `step_<n>.run.json` (env-step and episode counters), and
-//! `latest.json` is switched to the new pair only after both exist, so a run killed
-//! at any moment resumes from a complete checkpoint. The two newest are kept.
+//! Runs on its own OS thread (libtorch calls block). Checkpoints of the whole run
+//! (`resume.rs`, `checkpoint/run.rs`) are written every `checkpoint_period` steps
+//! and at the end.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use tokio::sync::watch;
 
 use crate::algo::{Learner, LearnerStats};
 use crate::checkpoint::CheckpointError;
-use crate::metrics::{RunFiles, write_json_atomic};
+use crate::metrics::RunFiles;
 use crate::nets::PolicySnapshot;
-use crate::schedule::{Counters, Schedule};
+use crate::resume::Checkpointer;
+use crate::schedule::Schedule;
 use crate::tensorboard::Scalar;
-
-/// Counters saved beside each learner checkpoint.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct RunProgress {
-    /// Env steps when the checkpoint was written.
-    pub env_steps: u64,
-    /// Learner steps (equals the learner's own counter).
-    pub learner_steps: u64,
-    /// Episodes finished.
-    pub episodes: u64,
-}
-
-#[derive(Debug, Serialize, Deserialize)]
-struct Latest {
-    checkpoint: String,
-}
 
 /// Errors of the learner loop.
 #[derive(Debug, thiserror::Error)]
@@ -54,9 +37,6 @@ pub enum LearnerLoopError {
         /// The I/O error.
         source: std::io::Error,
     },
-    /// No checkpoint to resume from.
-    #[error("no checkpoint in {0} (nothing to resume)")]
-    NoCheckpoint(PathBuf),
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnerLoopError + '_ {
@@ -64,64 +44,6 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnerLoopError + '_ {
         path: path.to_path_buf(),
         source,
     }
-}
-
-/// Write a checkpoint of `learner` and `counters` under `<run>/checkpoints/`.
-pub fn save_run_checkpoint(
-    run_dir: &Path,
-    learner: &Learner,
-    counters: &Counters,
-) -> Result<PathBuf, LearnerLoopError> {
-    let dir = run_dir.join("checkpoints");
-    let name = format!("step_{:09}", learner.step_count());
-    let ckpt = dir.join(&name);
-    learner.save_checkpoint(&ckpt)?;
-    let progress = RunProgress {
-        env_steps: counters.env_steps,
-        learner_steps: learner.step_count(),
-        episodes: counters.episodes,
-    };
-    let progress_path = dir.join(format!("{name}.run.json"));
-    write_json_atomic(&progress_path, &progress).map_err(io_err(&progress_path))?;
-    let latest = dir.join("latest.json");
-    write_json_atomic(
-        &latest,
-        &Latest {
-            checkpoint: name.clone(),
-        },
-    )
-    .map_err(io_err(&latest))?;
-    // Keep the two newest complete checkpoints.
-    let mut names: Vec<String> = std::fs::read_dir(&dir)
-        .map_err(io_err(&dir))?
-        .filter_map(|e| e.ok()?.file_name().into_string().ok())
-        .filter(|n| n.starts_with("step_") && !n.contains('.'))
-        .collect();
-    names.sort();
-    for old in names.iter().rev().skip(2) {
-        let _ = std::fs::remove_dir_all(dir.join(old));
-        let _ = std::fs::remove_file(dir.join(format!("{old}.run.json")));
-    }
-    Ok(ckpt)
-}
-
-/// The newest complete checkpoint of a run: its directory and counters.
-pub fn latest_checkpoint(run_dir: &Path) -> Result<(PathBuf, RunProgress), LearnerLoopError> {
-    let dir = run_dir.join("checkpoints");
-    let latest_path = dir.join("latest.json");
-    let text = std::fs::read_to_string(&latest_path)
-        .map_err(|_| LearnerLoopError::NoCheckpoint(run_dir.to_path_buf()))?;
-    let latest: Latest = serde_json::from_str(&text).map_err(|e| LearnerLoopError::Io {
-        path: latest_path.clone(),
-        source: std::io::Error::other(e),
-    })?;
-    let progress_path = dir.join(format!("{}.run.json", latest.checkpoint));
-    let text = std::fs::read_to_string(&progress_path).map_err(io_err(&progress_path))?;
-    let progress: RunProgress = serde_json::from_str(&text).map_err(|e| LearnerLoopError::Io {
-        path: progress_path.clone(),
-        source: std::io::Error::other(e),
-    })?;
-    Ok((dir.join(latest.checkpoint), progress))
 }
 
 /// One `learner.jsonl` record.
@@ -222,6 +144,8 @@ pub struct LearnerContext {
     pub log_period: u64,
     /// The latest statistics, for the progress display.
     pub latest: Arc<Mutex<Option<LearnerStats>>>,
+    /// Writes the run's checkpoints.
+    pub checkpointer: Checkpointer,
 }
 
 /// Run until the schedule stops; always writes a final checkpoint. Returns the learner.
@@ -235,6 +159,7 @@ pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
         checkpoint_period,
         log_period,
         latest,
+        mut checkpointer,
     } = ctx;
     let started = Instant::now();
     // (seconds, env steps, learner steps) at the previous record, for the rates.
@@ -284,8 +209,7 @@ pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
             }
             *latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
             if n % checkpoint_period == 0 {
-                files.flush().map_err(io_err(files.dir()))?;
-                save_run_checkpoint(files.dir(), &learner, &schedule.counters())?;
+                checkpointer.save(&learner, &schedule)?;
             }
             schedule.learner_stepped();
         }
@@ -295,7 +219,6 @@ pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
         schedule.stop(Some(e.to_string()));
     }
     // Whatever happened, leave a checkpoint of the state reached.
-    files.flush().map_err(io_err(files.dir()))?;
-    save_run_checkpoint(files.dir(), &learner, &schedule.counters())?;
+    checkpointer.save(&learner, &schedule)?;
     result.map(|()| learner)
 }

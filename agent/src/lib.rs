@@ -41,6 +41,7 @@ pub mod pareto;
 pub mod plot;
 pub mod random;
 pub mod replay;
+pub mod resume;
 pub mod run_config;
 pub mod run_name;
 pub mod schedule;

@@ -48,6 +48,8 @@ enum Command {
         total_env_steps: Option<u64>,
         /// Override any config field, `dotted.path=toml_value` (repeatable), e.g.
         /// `--set seed=3 --set learner.mpo.batch_size=64 --set learner.objectives.1.epsilon=0.0`.
+        /// With --resume only the budget, periods, checkpoint_replay, eval_episodes,
+        /// servers and device may change (an error names any other field).
         #[arg(long = "set", value_name = "PATH=VALUE")]
         overrides: Vec<String>,
         /// Override learner.device.
@@ -288,6 +290,12 @@ async fn run() -> Result<()> {
             }
             cfg.env.connection = connection.apply(cfg.env.connection);
             cfg.validate()?;
+            if resume.is_some() {
+                let stored = TrainConfig::load(&path)
+                    .with_context(|| format!("loading {}", path.display()))?;
+                cfg.check_resume_changes(&stored)
+                    .context("--resume continues the run as configured")?;
+            }
             let (addresses, local) =
                 server_addresses(&cfg.env.servers, &cfg.env.connection).await?;
             let summary = train(

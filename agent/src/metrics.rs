@@ -6,7 +6,8 @@
 //! - `learner.jsonl`: learner statistics every `log_period` learner steps;
 //! - `events.out.tfevents.*`: the same figures for TensorBoard, every chart by env
 //!   step (training returns, learner statistics, throughput, final evaluation returns);
-//! - `checkpoints/`, `summary.json`, `curves.{png,svg}` (written by `train`).
+//! - `checkpoints/`, `replay/` (the checkpoints' replay segments), `summary.json`,
+//!   `curves.{png,svg}` (written by `train`).
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Write};
@@ -129,15 +130,6 @@ impl RunFiles {
             .zip(values)
             .map(|(name, v)| Scalar::new(format!("{prefix}/{name}"), *v))
             .collect()
-    }
-
-    /// Tell TensorBoard that a resumed run continues from `env_steps`: what the earlier
-    /// process logged beyond it (after its last checkpoint) is superseded.
-    pub fn resumed_at(&self, env_steps: u64) -> std::io::Result<()> {
-        self.events
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .restart(env_steps)
     }
 
     /// The TensorBoard event file this process writes (errors name it).

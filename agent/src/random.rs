@@ -15,7 +15,7 @@
 //! process-wide lock, which makes the global generator a per-run stream for exactly
 //! the duration of a build.
 
-use rand::{RngExt, SeedableRng};
+use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use std::sync::Mutex;
@@ -35,6 +35,9 @@ pub enum Purpose {
     LearnerActing,
     /// Which snippets the replay samples.
     Replay,
+    /// Seeds of the env sessions an actor makes after its first; `index` is the
+    /// actor number, the counter its act count.
+    EnvSeeds,
     /// The preference (grid point) of each new episode of one actor's instances
     /// (`index` is the actor number; counter: the actor's step).
     ActingPreference,
@@ -50,8 +53,9 @@ impl Purpose {
             Purpose::Acting => 3,
             Purpose::LearnerActing => 4,
             Purpose::Replay => 5,
-            Purpose::ActingPreference => 6,
-            Purpose::LearnerPreference => 7,
+            Purpose::EnvSeeds => 6,
+            Purpose::ActingPreference => 7,
+            Purpose::LearnerPreference => 8,
         }
     }
 }
@@ -82,6 +86,13 @@ impl StreamKey {
         let mut rng = self.rng();
         rng.set_stream(counter);
         RandomStream { rng }
+    }
+
+    /// One seed below 2^31 (what every simulator backend takes) at `counter`.
+    pub fn seed_at(self, counter: u64) -> u64 {
+        let mut rng = self.rng();
+        rng.set_stream(counter);
+        rng.next_u64() >> 33
     }
 
     /// The raw generator of this key at counter 0.

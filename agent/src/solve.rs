@@ -105,6 +105,30 @@ impl SolveTracker {
     pub fn solved(&self) -> Option<&SolveRecord> {
         self.solved.as_ref()
     }
+
+    /// What a checkpoint keeps: the window and the record (the thresholds come from
+    /// the config again).
+    pub fn state(&self) -> SolveState {
+        SolveState {
+            recent: self.recent.iter().cloned().collect(),
+            solved: self.solved.clone(),
+        }
+    }
+
+    /// Continue from a checkpoint's window and record.
+    pub fn restore(&mut self, state: SolveState) {
+        self.recent = state.recent.into();
+        self.solved = state.solved;
+    }
+}
+
+/// The part of a [`SolveTracker`] that changes while a run trains.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SolveState {
+    /// Returns of the last (at most `SOLVE_WINDOW`) episodes, oldest first.
+    pub recent: Vec<Vec<f64>>,
+    /// When the run first counted as solved, if it has.
+    pub solved: Option<SolveRecord>,
 }
 
 #[cfg(test)]

@@ -7,9 +7,10 @@
 //!   LE`, `data`, `masked_crc32c(data): u32 LE`, where `masked(c) = ((c >> 15) | (c <<
 //!   17)) + 0xa282_ead8` (tensorflow/core/lib/hash/crc32c.h);
 //! - each record is a `tensorflow.Event` (event.proto): the first carries
-//!   `file_version = "brain.Event:2"`, the others a `Summary` of `simple_value` scalars,
-//!   or a `SessionLog` START where a resumed run continues (TensorBoard then drops what
-//!   the interrupted process logged past that step, as it does for TensorFlow restarts).
+//!   `file_version = "brain.Event:2"`, the others a `Summary` of `simple_value` scalars.
+//!   A resumed run cuts the earlier files back to its checkpoint's records
+//!   (`resume.rs`) rather than writing a `SessionLog` START, whose purge would also
+//!   drop the records at the checkpoint's own step.
 //!
 //! The field numbers below are those of tensorboard/compat/proto/{event,summary}.proto.
 //! `tests/tensorboard.rs` reads the files back with the `tensorboard` Python package.
@@ -32,18 +33,7 @@ struct Event {
     file_version: Option<String>,
     #[prost(message, optional, tag = "5")]
     summary: Option<Summary>,
-    #[prost(message, optional, tag = "6")]
-    session_log: Option<SessionLog>,
 }
-
-/// `tensorflow.SessionLog`; status 1 is START.
-#[derive(Clone, PartialEq, prost::Message)]
-struct SessionLog {
-    #[prost(int32, tag = "1")]
-    status: i32,
-}
-
-const SESSION_START: i32 = 1;
 
 /// `tensorflow.Summary`.
 #[derive(Clone, PartialEq, prost::Message)]
@@ -121,7 +111,6 @@ impl EventWriter {
             step: 0,
             file_version: Some("brain.Event:2".into()),
             summary: None,
-            session_log: None,
         })?;
         writer.flush()?;
         Ok(writer)
@@ -149,20 +138,6 @@ impl EventWriter {
             step: i64::try_from(step).unwrap_or(i64::MAX),
             file_version: None,
             summary: Some(Summary { value }),
-            session_log: None,
-        })
-    }
-
-    /// Mark that the run continues from `step` (a resume from a checkpoint).
-    pub fn restart(&mut self, step: u64) -> std::io::Result<()> {
-        self.record(&Event {
-            wall_time: now(),
-            step: i64::try_from(step).unwrap_or(i64::MAX),
-            file_version: None,
-            summary: None,
-            session_log: Some(SessionLog {
-                status: SESSION_START,
-            }),
         })
     }
 

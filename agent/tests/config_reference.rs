@@ -17,7 +17,7 @@ use syn::{Attribute, Fields, GenericArgument, Item, ItemEnum, ItemStruct, PathAr
 /// The files that define config structs, relative to `agent/`. A field whose type is
 /// defined anywhere else stops the generator with the type's name.
 const SOURCES: &[&str] = &[
-    "src/run_config.rs",
+    "src/run_config/mod.rs",
     "src/config/mod.rs",
     "src/config/mpo.rs",
     "src/config/vmpo.rs",
@@ -25,7 +25,7 @@ const SOURCES: &[&str] = &[
     "src/config/shared.rs",
     "src/env/connection.rs",
     "src/sweep/config.rs",
-    "src/front.rs",
+    "src/front/mod.rs",
     "src/config/conditioning.rs",
 ];
 
@@ -622,10 +622,12 @@ sweep file (`agent sweep --config`, `configs/sweeps/*.toml`): its TOML type, its
 Table 5, ...), the default is that table's value in Abdolmaleki et al. (2020),
 appendix A, and presets in `configs/` override it as their comments say. Every table is
 strict: an unknown key is an error that names it. `--set dotted.path=value` overrides
-any field from the command line (array elements by index: `learner.objectives.1.epsilon`).
+any field from the command line (array elements by index: `learner.objectives.1.epsilon`);
+with `train --resume`, only the fields a running run may change (the budget, log and
+checkpoint periods, `run.checkpoint_replay`, `run.eval_episodes`, servers, device).
 
 This file is generated from the doc comments of the config structs
-(`agent/src/config/`, `agent/src/run_config.rs`, `agent/src/sweep/config.rs`,
+(`agent/src/config/`, `agent/src/run_config/`, `agent/src/sweep/config.rs`,
 `agent/src/env/connection.rs`) and their `Default`s; a test fails when it is stale or a
 field has no doc comment. Regenerate it after changing a config struct:
 

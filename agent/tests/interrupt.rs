@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
+use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
-use agent::learner::latest_checkpoint;
 use cli::{agent_cmd, run_dir_in, smoke_dst};
 
 /// Wait until the run in `runs` has a checkpoint past `learner_steps`, then send `signal`.

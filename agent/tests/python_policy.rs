@@ -12,12 +12,11 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
+use agent::checkpoint::run::{RunProgress, write_run_checkpoint};
 use agent::env::connection::ConnectionConfig;
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
 use agent::eval::evaluate_checkpoint;
-use agent::learner::save_run_checkpoint;
 use agent::run_config::TrainConfig;
-use agent::schedule::Counters;
 use agent::train::{TrainOptions, train};
 use tch::Tensor;
 
@@ -174,7 +173,8 @@ fn a_mocap_policy_in_pytorch_acts_as_the_agent() {
     cfg.learner = learner.config().clone();
     std::fs::create_dir_all(&run).unwrap();
     std::fs::write(run.join("config.toml"), toml::to_string(&cfg).unwrap()).unwrap();
-    save_run_checkpoint(&run, &learner, &Counters::default()).unwrap();
+    let progress = RunProgress::learner_only(learner.step_count());
+    write_run_checkpoint(&run, &learner, &progress, None).unwrap();
     // Leaves walker/joints (1) and walker/reference_pos (2): proprioception is index 0.
     let obs = observations(32, common::OBS as usize, 3.0);
     let obs_path = dir.path().join("obs.json");

@@ -3,7 +3,7 @@
 //! and `learner_step_pendulum` (the old pendulum preset's size) run one full MO-MPO
 //! step on a fixed random batch through `run` (or, `learner_step` against PyTorch,
 //! through `prepare`, `warm_up` and `timed` in rounds); `vmpo_step` uses `time_steps`
-//! and `arg`. A step is timed as the median of `--steps` steps after warm-up steps,
+//! and `arg`, `checkpoint_cost` `arg` and `median`. A step is timed as the median of `--steps` steps after warm-up steps,
 //! with the share of each phase.
 
 use agent::algo::{Learner, LearnerDims, SnippetBatch};

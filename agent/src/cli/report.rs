@@ -66,8 +66,14 @@ pub(crate) fn train(s: &TrainSummary) {
             ),
         }
     }
+    // replay/ holds the checkpoints' replay segments (none with checkpoint_replay = false).
+    let replay = if s.run_dir.join("replay").exists() {
+        " replay/"
+    } else {
+        ""
+    };
     println!(
-        "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg events.out.tfevents.* checkpoints/"
+        "  files: config.toml episodes.csv learner.jsonl summary.json curves.png/svg events.out.tfevents.* checkpoints/{replay}"
     );
     if let Some(front) = &s.front {
         front_table(front, "front", "grid points");

@@ -108,6 +108,70 @@ impl SnippetReplay {
         self.inserted
     }
 
+    /// Number (in insertion order, from 0) of the oldest snippet held: the replay holds
+    /// snippets `held_from()..inserted()`, whether a full ring evicted the older ones
+    /// or the learner took them off an on-policy queue.
+    pub fn held_from(&self) -> u64 {
+        self.inserted - self.snippets.len() as u64
+    }
+
+    /// Copies of the held snippets numbered `from..inserted()`, oldest first (`from`
+    /// is raised to `held_from()`).
+    pub fn snippets_from(&self, from: u64) -> Vec<Snippet> {
+        let from = from.max(self.held_from());
+        (from..self.inserted)
+            .map(|j| self.snippets[self.slot(j)].clone())
+            .collect()
+    }
+
+    /// Where snippet number `j` (held) sits: a full ring wraps at `capacity`; an
+    /// on-policy queue is kept oldest first.
+    fn slot(&self, j: u64) -> usize {
+        if self.layout.on_policy {
+            (j - self.held_from()) as usize
+        } else {
+            (j % self.capacity as u64) as usize
+        }
+    }
+
+    /// The sampler's position in its stream (ChaCha8 words drawn), for a checkpoint.
+    pub fn sampler_position(&self) -> u128 {
+        self.rng.get_word_pos()
+    }
+
+    /// Refill from a checkpoint: `held` are the snippets numbered
+    /// `inserted - held.len()..inserted`, oldest first; each goes back to the slot it
+    /// had, and the sampler continues at `sampler_position`, so the learner samples
+    /// what an uninterrupted run samples.
+    pub fn restore(
+        &mut self,
+        held: Vec<Snippet>,
+        inserted: u64,
+        sampler_position: u128,
+    ) -> Result<(), ReplayError> {
+        if held.len() > self.capacity || held.len() as u64 > inserted {
+            return Err(ReplayError {
+                field: "held",
+                expected: self.capacity.min(inserted as usize),
+                got: held.len(),
+            });
+        }
+        self.snippets = held;
+        self.inserted = inserted;
+        if !self.layout.on_policy && self.snippets.len() == self.capacity {
+            let first = self.held_from();
+            self.snippets
+                .rotate_right((first % self.capacity as u64) as usize);
+        }
+        self.next = if self.layout.on_policy {
+            self.snippets.len() % self.capacity
+        } else {
+            (inserted % self.capacity as u64) as usize
+        };
+        self.rng.set_word_pos(sampler_position);
+        Ok(())
+    }
+
     /// Add a snippet, evicting the oldest when full.
     pub fn insert(&mut self, snippet: Snippet) -> Result<(), ReplayError> {
         let l = self.layout;
@@ -300,6 +364,33 @@ mod tests {
             .collect();
         assert_eq!(tags, [3.0, 4.0]);
         assert!(queue.is_empty());
+    }
+
+    #[test]
+    fn a_restored_replay_samples_what_the_original_samples() {
+        // Capacity 3 snippets, 5 inserted: the ring has wrapped (slots hold 3, 4, 2).
+        let mut original = SnippetReplay::new(layout(), 6, 9);
+        for tag in 0..5 {
+            original.insert(snippet(tag as f32)).unwrap();
+        }
+        original.sample(4);
+        assert_eq!(original.held_from(), 2);
+        let held = original.snippets_from(0);
+        let mut restored = SnippetReplay::new(layout(), 6, 9);
+        restored
+            .restore(held, original.inserted(), original.sampler_position())
+            .unwrap();
+        let (a, b) = (original.sample(32), restored.sample(32));
+        assert!(a.observations.equal(&b.observations));
+        original.insert(snippet(7.0)).unwrap();
+        restored.insert(snippet(7.0)).unwrap();
+        assert_eq!(original.snippets_from(0), restored.snippets_from(0));
+        assert!(
+            original
+                .sample(32)
+                .rewards
+                .equal(&restored.sample(32).rewards)
+        );
     }
 
     #[test]

@@ -35,6 +35,7 @@ use crate::metrics::RunFiles;
 use crate::nets::ActorPolicy;
 use crate::plot::PlotError;
 use crate::random::{Purpose, StreamKey};
+use crate::resume::Checkpointer;
 use crate::run_config::TrainConfig;
 use crate::solve::SolveRecord;
 use crate::spec::EnvSpec;
@@ -178,6 +179,7 @@ pub async fn train(
         run_dir,
         learner,
         counters,
+        resumed,
     } = open_run(&cfg, options.resume.as_deref(), &dims, device)?;
     let grid = learner.preference_grid().cloned().map(Arc::new);
     let conditioned: Vec<String> = grid.as_ref().map_or_else(Vec::new, |g| {
@@ -188,11 +190,20 @@ pub async fn train(
     });
     let files =
         Arc::new(RunFiles::open(&run_dir, &objectives, &conditioned).map_err(io(&run_dir))?);
-    if options.resume.is_some() {
-        files.resumed_at(counters.env_steps).map_err(io(&run_dir))?;
-    }
     let layout = snippet_layout(&cfg, &dims, objectives.len());
-    let schedule = Arc::new(schedule_for(&cfg, layout, &objectives, counters)?);
+    let first_acts: Vec<u64> = counters.actors.iter().map(|a| a.acts).collect();
+    let schedule = Arc::new(schedule_for(
+        &cfg,
+        layout,
+        &objectives,
+        counters,
+        &run_dir,
+        resumed.as_ref(),
+    )?);
+    let segments_end = resumed
+        .as_ref()
+        .and_then(|p| p.replay.as_ref())
+        .map_or(0, |r| r.inserted);
     let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
     let latest = Arc::new(Mutex::new(None));
 
@@ -206,6 +217,7 @@ pub async fn train(
             checkpoint_period: cfg.run.checkpoint_period,
             log_period: cfg.run.log_period,
             latest: latest.clone(),
+            checkpointer: Checkpointer::new(files.clone(), cfg.run.checkpoint_replay, segments_end),
         };
         std::thread::Builder::new()
             .name("learner".into())
@@ -229,6 +241,8 @@ pub async fn train(
             },
             policy,
             sampling: StreamKey::new(cfg.seed, Purpose::Acting, a as u64),
+            first_act: first_acts.get(a).copied().unwrap_or(0),
+            env_seeds: StreamKey::new(cfg.seed, Purpose::EnvSeeds, a as u64),
             params: params_rx.clone(),
             layout,
             schedule: schedule.clone(),

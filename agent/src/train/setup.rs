@@ -1,6 +1,6 @@
 //! A run's state before its first step: the run directory (made, or reopened to
-//! resume from its latest checkpoint), the learner, and the schedule that paces actors
-//! and learner (replay layout, rate limit, counters, solve tracker).
+//! resume from its latest checkpoint, `resume.rs`), the learner, and the schedule
+//! that paces actors and learner (replay layout, rate limit, counters, solve tracker).
 
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
@@ -10,9 +10,10 @@ use tch::Device;
 use super::{TrainError, io};
 use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
-use crate::learner::latest_checkpoint;
+use crate::checkpoint::run::{PaceOrigin, RunProgress};
 use crate::nets::ActionKind;
 use crate::replay::{SnippetLayout, SnippetReplay};
+use crate::resume::{Reopened, open_checkpoint, restore_schedule};
 use crate::run_config::TrainConfig;
 use crate::run_name;
 use crate::schedule::{Counters, Pace, Schedule};
@@ -24,6 +25,8 @@ pub(super) struct Opened {
     pub learner: Learner,
     /// Zero for a new run; the checkpoint's progress when resuming.
     pub counters: Counters,
+    /// The checkpoint resumed from.
+    pub resumed: Option<RunProgress>,
 }
 
 /// A new run directory holding the resolved `config.toml`, or, with `resume`, that
@@ -35,9 +38,10 @@ pub(super) fn open_run(
     device: Device,
 ) -> Result<Opened, TrainError> {
     if let Some(dir) = resume {
-        let (ckpt, progress) = latest_checkpoint(dir)?;
-        let learner = Learner::load_checkpoint(&ckpt, device)?;
-        tracing::info!(checkpoint = %ckpt.display(), env_steps = progress.env_steps, "resuming");
+        let Reopened { learner, progress } = open_checkpoint(dir, device)?;
+        // The run's config as this invocation changed it (`--set` of the fields a
+        // running run may change), for the next resume.
+        write_config(dir, cfg)?;
         return Ok(Opened {
             run_dir: dir.to_path_buf(),
             learner,
@@ -45,21 +49,36 @@ pub(super) fn open_run(
                 env_steps: progress.env_steps,
                 learner_steps: progress.learner_steps,
                 episodes: progress.episodes,
+                recent_returns: progress.recent_returns.iter().cloned().collect(),
+                actors: progress.actors.clone(),
                 ..Counters::default()
             },
+            resumed: Some(progress),
         });
     }
     let dir = new_run_dir(cfg)?;
-    let text = toml::to_string_pretty(cfg).map_err(|e| TrainError::Io {
-        path: dir.join("config.toml"),
-        source: std::io::Error::other(e),
-    })?;
-    std::fs::write(dir.join("config.toml"), text).map_err(io(&dir))?;
+    write_config(&dir, cfg)?;
     Ok(Opened {
         run_dir: dir,
         learner: Learner::new(cfg.learner.clone(), dims.clone(), device)?,
         counters: Counters::default(),
+        resumed: None,
     })
+}
+
+fn write_config(dir: &Path, cfg: &TrainConfig) -> Result<(), TrainError> {
+    let path = dir.join("config.toml");
+    let text = toml::to_string_pretty(cfg).map_err(|e| TrainError::Io {
+        path: path.clone(),
+        source: std::io::Error::other(e),
+    })?;
+    write_text_atomic(&path, &text).map_err(io(&path))
+}
+
+fn write_text_atomic(path: &Path, text: &str) -> std::io::Result<()> {
+    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
+    std::fs::write(&tmp, text)?;
+    std::fs::rename(&tmp, path)
 }
 
 /// How actors write snippets and the learner reads them.
@@ -81,13 +100,15 @@ pub(super) fn snippet_layout(
     }
 }
 
-/// The schedule over a fresh replay: off-policy, the ratio pace after a warm-up;
-/// on-policy, a queue the actors fill one batch ahead.
+/// The schedule over a fresh replay, or the checkpoint's when resuming: off-policy,
+/// the ratio pace after a warm-up; on-policy, a queue the actors fill one batch ahead.
 pub(super) fn schedule_for(
     cfg: &TrainConfig,
     layout: SnippetLayout,
     objectives: &[String],
     counters: Counters,
+    run_dir: &Path,
+    resumed: Option<&RunProgress>,
 ) -> Result<Schedule, TrainError> {
     let settings = cfg.learner.shared();
     let (capacity, pace) = if layout.on_policy {
@@ -105,11 +126,16 @@ pub(super) fn schedule_for(
         };
         (cfg.learner.mpo.replay_capacity, pace)
     };
-    let replay = SnippetReplay::new(layout, capacity, cfg.seed);
+    let mut replay = SnippetReplay::new(layout, capacity, cfg.seed);
     let mut solve = SolveTracker::new(&cfg.run.solve_threshold, objectives)?;
     solve.stop_on_solve = cfg.run.stop_on_solve;
+    let mut origin = PaceOrigin::default();
+    if let Some(progress) = resumed {
+        solve.restore(progress.solve.clone());
+        origin = restore_schedule(run_dir, progress, &mut replay)?;
+    }
     let counters = Counters { solve, ..counters };
-    Ok(Schedule::new(replay, pace, counters))
+    Ok(Schedule::new(replay, pace, counters, origin))
 }
 
 /// A new folder `<runs_dir>/<task>__<algo>__<seed>__<UTC start time>` (see [`run_name`]).

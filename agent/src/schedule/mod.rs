@@ -10,11 +10,19 @@
 //! learner waits for env steps. With one actor the interleaving is therefore fixed,
 //! and a run with the same config and seed reproduces its learning curve on the same
 //! machine.
+//!
+//! Both paces count from a [`PaceOrigin`]: zero, or the resume point of a run resumed
+//! without its replay, which then refills `min_replay_transitions` and goes on at the
+//! ratio instead of catching up on the steps the counters say it is behind. An
+//! actor's step (snippets, env steps, episodes, its log rows) is committed under one
+//! lock ([`Schedule::commit`]) that a checkpoint's [`Schedule::snapshot`] also takes,
+//! so a checkpoint sees every actor step whole or not at all.
 
 use std::sync::{Condvar, Mutex, MutexGuard};
 use std::time::Instant;
 
-use crate::replay::SnippetReplay;
+use crate::checkpoint::run::{ActorProgress, PaceOrigin};
+use crate::replay::{ReplayError, Snippet, SnippetReplay};
 use crate::solve::{SolveRecord, SolveTracker};
 
 /// Episodes kept for the running mean shown while training.
@@ -50,6 +58,34 @@ pub struct Counters {
     pub interrupted: Option<String>,
     /// Decides and keeps when the run first counted as solved (`run.solve_threshold`).
     pub solve: SolveTracker,
+    /// Per actor, what its last committed step reached.
+    pub actors: Vec<ActorProgress>,
+}
+
+/// What one actor step adds to the run.
+#[derive(Debug)]
+pub struct ActorStep {
+    /// The actor.
+    pub actor: usize,
+    /// Its act calls so far, this step's included.
+    pub acts: u64,
+    /// Env steps taken (B).
+    pub env_steps: u64,
+    /// Snippets completed, for the replay.
+    pub snippets: Vec<Snippet>,
+    /// Returns of the episodes that ended.
+    pub episode_returns: Vec<Vec<f64>>,
+}
+
+/// Why an actor step could not be committed.
+#[derive(Debug, thiserror::Error)]
+pub enum CommitError {
+    /// A snippet did not fit the replay.
+    #[error(transparent)]
+    Replay(#[from] ReplayError),
+    /// Writing the step's log rows failed.
+    #[error("episodes.csv: {0}")]
+    Log(std::io::Error),
 }
 
 /// How many learner steps the data so far allows.
@@ -85,19 +121,19 @@ pub struct Schedule {
     /// The replay, filled by actors and sampled by the learner.
     pub replay: Mutex<SnippetReplay>,
     pace: Pace,
-    /// Learner steps already done when the replay was made (resumed runs), so that an
-    /// on-policy budget counts only this invocation's unrolls.
-    learner_steps_at_start: u64,
+    /// Where the pace counts from (module docs).
+    origin: PaceOrigin,
     /// When this invocation's actor-learner loop was set up (wall-clock stamps of
     /// episodes and of "solved").
     started: Instant,
 }
 
 impl Schedule {
-    /// A schedule starting from `counters` (non-zero when resuming).
-    pub fn new(replay: SnippetReplay, pace: Pace, counters: Counters) -> Self {
+    /// A schedule starting from `counters` (non-zero when resuming), its pace
+    /// counting from `origin`.
+    pub fn new(replay: SnippetReplay, pace: Pace, counters: Counters, origin: PaceOrigin) -> Self {
         Self {
-            learner_steps_at_start: counters.learner_steps,
+            origin,
             counters: Mutex::new(counters),
             learner_wake: Condvar::new(),
             actor_wake: tokio::sync::Notify::new(),
@@ -123,6 +159,19 @@ impl Schedule {
         self.lock().clone()
     }
 
+    /// Where the pace counts from.
+    pub fn origin(&self) -> PaceOrigin {
+        self.origin
+    }
+
+    /// Runs `f` on the counters and the replay with no actor step half-committed
+    /// (checkpoints).
+    pub fn snapshot<R>(&self, f: impl FnOnce(&Counters, &SnippetReplay) -> R) -> R {
+        let c = self.lock();
+        let replay = self.replay.lock().unwrap_or_else(|e| e.into_inner());
+        f(&c, &replay)
+    }
+
     fn lock(&self) -> MutexGuard<'_, Counters> {
         self.counters.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -138,11 +187,13 @@ impl Schedule {
                 if fill.transitions < min_replay {
                     return c.learner_steps;
                 }
-                let warm = c.env_steps.saturating_sub(min_replay) as f64;
-                (warm * learner_steps_per_env_step).floor() as u64
+                let since = c.env_steps.saturating_sub(self.origin.env_steps);
+                let warm = since.saturating_sub(min_replay) as f64;
+                self.origin.learner_steps + (warm * learner_steps_per_env_step).floor() as u64
             }
             Pace::OnPolicy { batch_size } => {
-                self.learner_steps_at_start + fill.inserted / batch_size as u64
+                let inserted = fill.inserted.saturating_sub(self.origin.inserted);
+                self.origin.learner_steps + inserted / batch_size as u64
             }
         }
     }
@@ -155,10 +206,46 @@ impl Schedule {
         }
     }
 
-    /// Record env steps and finished episodes' returns from an actor; wake the learner.
+    /// Record env steps and finished episodes' returns; wake the learner.
     pub fn add_env_steps(&self, steps: u64, episode_returns: impl IntoIterator<Item = Vec<f64>>) {
-        let wall = self.elapsed_seconds();
         let mut c = self.lock();
+        self.count(&mut c, steps, episode_returns);
+        drop(c);
+        self.wake_after_steps();
+    }
+
+    /// Commit one actor step: its snippets into the replay, its counts, and its log
+    /// rows (`log` gets the env steps after the step), all under the counters' lock.
+    pub fn commit(
+        &self,
+        step: ActorStep,
+        log: impl FnOnce(u64) -> std::io::Result<()>,
+    ) -> Result<(), CommitError> {
+        let mut c = self.lock();
+        {
+            let mut replay = self.replay.lock().unwrap_or_else(|e| e.into_inner());
+            for s in step.snippets {
+                replay.insert(s)?;
+            }
+        }
+        log(c.env_steps + step.env_steps).map_err(CommitError::Log)?;
+        if c.actors.len() <= step.actor {
+            c.actors.resize(step.actor + 1, ActorProgress::default());
+        }
+        c.actors[step.actor].acts = step.acts;
+        self.count(&mut c, step.env_steps, step.episode_returns);
+        drop(c);
+        self.wake_after_steps();
+        Ok(())
+    }
+
+    fn count(
+        &self,
+        c: &mut Counters,
+        steps: u64,
+        episode_returns: impl IntoIterator<Item = Vec<f64>>,
+    ) {
+        let wall = self.elapsed_seconds();
         c.env_steps += steps;
         for r in episode_returns {
             c.episodes += 1;
@@ -174,8 +261,10 @@ impl Schedule {
             }
             c.recent_returns.push_back(r);
         }
-        let stopping = c.stop;
-        drop(c);
+    }
+
+    fn wake_after_steps(&self) {
+        let stopping = self.lock().stop;
         self.learner_wake.notify_all();
         if stopping {
             self.actor_wake.notify_waiters();
@@ -253,124 +342,4 @@ impl Schedule {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::replay::{Snippet, SnippetLayout};
-
-    fn schedule(ratio: f64, min_replay: usize) -> Schedule {
-        let layout = SnippetLayout {
-            length: 1,
-            obs_dim: 1,
-            action_width: 1,
-            num_rewards: 1,
-            discrete: true,
-            on_policy: false,
-        };
-        let pace = Pace::Ratio {
-            learner_steps_per_env_step: ratio,
-            min_replay_transitions: min_replay,
-        };
-        Schedule::new(
-            SnippetReplay::new(layout, 1000, 0),
-            pace,
-            Counters::default(),
-        )
-    }
-
-    fn fill(s: &Schedule, n: usize) {
-        let mut r = s.replay.lock().unwrap();
-        for _ in 0..n {
-            let snippet = Snippet {
-                observations: vec![0.0, 0.0],
-                actions: vec![0.0],
-                rewards: vec![0.0],
-                discounts: vec![1.0],
-                behaviour_log_probs: vec![0.0],
-                valid: vec![1.0],
-            };
-            r.insert(snippet).unwrap();
-        }
-    }
-
-    #[test]
-    fn learner_budget_follows_the_ratio_after_warm_up() {
-        let s = schedule(0.25, 10);
-        fill(&s, 9);
-        s.add_env_steps(9, []);
-        assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "replay not warm yet");
-        fill(&s, 11);
-        s.add_env_steps(11, []);
-        // 20 env steps, 10 past warm-up, ratio 1/4 -> 2 learner steps.
-        assert_eq!(s.allowed(&s.counters(), s.fill()), 2);
-        assert!(s.wait_for_work());
-        s.learner_stepped();
-        assert!(s.wait_for_work());
-        s.learner_stepped();
-        s.stop(None);
-        assert!(
-            !s.wait_for_work(),
-            "no third step: the budget is 2, and the run stopped"
-        );
-    }
-
-    #[test]
-    fn on_policy_allows_one_step_per_batch_of_unrolls() {
-        let layout = SnippetLayout {
-            length: 1,
-            obs_dim: 1,
-            action_width: 1,
-            num_rewards: 1,
-            discrete: true,
-            on_policy: true,
-        };
-        let s = Schedule::new(
-            SnippetReplay::new(layout, usize::MAX, 0),
-            Pace::OnPolicy { batch_size: 4 },
-            Counters::default(),
-        );
-        fill(&s, 3);
-        assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "3 of 4 unrolls");
-        fill(&s, 6);
-        assert_eq!(
-            s.allowed(&s.counters(), s.fill()),
-            2,
-            "9 unrolls make two batches"
-        );
-        assert_eq!(s.replay.lock().unwrap().sample(4).batch_size(), 4);
-        s.learner_stepped();
-        assert_eq!(
-            s.allowed(&s.counters(), s.fill()),
-            2,
-            "consuming a batch does not change the budget"
-        );
-    }
-
-    #[tokio::test]
-    async fn actors_wait_until_the_learner_catches_up() {
-        let s = std::sync::Arc::new(schedule(1.0, 1));
-        fill(&s, 3);
-        s.add_env_steps(3, []);
-        let learner = {
-            let s = s.clone();
-            std::thread::spawn(move || {
-                let mut steps = 0;
-                while s.wait_for_work() {
-                    s.learner_stepped();
-                    steps += 1;
-                    if steps == 2 {
-                        break;
-                    }
-                }
-            })
-        };
-        tokio::time::timeout(std::time::Duration::from_secs(10), s.wait_for_learner())
-            .await
-            .unwrap();
-        assert_eq!(
-            s.counters().learner_steps,
-            2,
-            "(3 - 1) * 1.0 learner steps before the actor resumes"
-        );
-        learner.join().unwrap();
-    }
-}
+mod tests;

@@ -13,6 +13,10 @@
 //! only then is the old one removed. A crash leaves either the old or the new
 //! checkpoint complete under one of those names.
 //!
+//! A run's checkpoint adds its own files to the same directory (`run.rs`: counters,
+//! random-stream positions, logs' lengths) and the replay's segments beside it
+//! (`replay.rs`).
+//!
 //! `duals/alpha` is `[2]` for a Gaussian policy with a summed KL constraint, `[2 D]`
 //! with a per-dimension one (`algo/dual.rs`), `[1]` for a categorical policy; the
 //! stored config rebuilds the learner with the same shape.
@@ -20,6 +24,9 @@
 //! The online networks' parameters alone also go in and out as named arrays
 //! (`Learner::parameters`, `Learner::load_parameters`), e.g. from a reference
 //! implementation.
+
+pub mod replay;
+pub mod run;
 
 use crate::algo::adam::AdamStateError;
 use crate::algo::state::Critics;
@@ -70,6 +77,19 @@ pub enum CheckpointError {
     /// Optimizer state did not fit.
     #[error("checkpoint: {0}")]
     Optimizer(#[from] AdamStateError),
+    /// No checkpoint to resume from.
+    #[error("no checkpoint in {0} (nothing to resume)")]
+    NoCheckpoint(PathBuf),
+}
+
+/// One more file written into a checkpoint directory with the learner's, under the
+/// same atomic rename.
+#[derive(Debug, Clone, Copy)]
+pub struct ExtraFile<'a> {
+    /// File name inside the directory.
+    pub name: &'a str,
+    /// Its bytes.
+    pub contents: &'a [u8],
 }
 
 /// Contents of `state.json`.
@@ -171,6 +191,15 @@ impl Learner {
 
     /// Writes the full learner state to `dir` atomically (see module docs).
     pub fn save_checkpoint(&self, dir: &Path) -> Result<(), CheckpointError> {
+        self.save_checkpoint_with(dir, &[])
+    }
+
+    /// As [`Learner::save_checkpoint`], with `extra` files in the same directory.
+    pub fn save_checkpoint_with(
+        &self,
+        dir: &Path,
+        extra: &[ExtraFile<'_>],
+    ) -> Result<(), CheckpointError> {
         let name = dir
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -234,6 +263,10 @@ impl Learner {
                 source,
             })?;
         std::fs::write(&json_path, text).map_err(io(&json_path))?;
+        for file in extra {
+            let path = tmp.join(file.name);
+            std::fs::write(&path, file.contents).map_err(io(&path))?;
+        }
 
         let old = parent.join(format!("{name}.old-{}", std::process::id()));
         let had_old = dir.exists();

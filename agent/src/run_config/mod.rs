@@ -25,6 +25,11 @@ use crate::env::connection::ConnectionConfig;
 use crate::env::discovery::{DiscoveryError, FORMS, ServerSource};
 use crate::front::FrontConfig;
 
+mod overrides;
+
+pub use overrides::RESUMABLE_FIELDS;
+use overrides::apply_override;
+
 /// Which environment the actors step, and where.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -84,6 +89,12 @@ pub struct RunConfig {
     pub publish_period: u64,
     /// Learner steps between checkpoints (one is also written at exit).
     pub checkpoint_period: u64,
+    /// Off-policy: checkpoints hold the replay's contents (appended as segments under
+    /// `<run>/replay/`), so a resume samples from the replay the run had. `false`
+    /// keeps checkpoints small; a resume then refills `min_replay_transitions` and
+    /// goes on at the ratio from there (no catch-up burst). On-policy: the queued
+    /// unrolls (at most about a batch) are kept or, with `false`, dropped.
+    pub checkpoint_replay: bool,
     /// Learner steps between metric records.
     pub log_period: u64,
     /// Episodes of the final evaluation (deterministic policy).
@@ -107,6 +118,7 @@ impl Default for RunConfig {
             min_replay_transitions: 1_000,
             publish_period: 1,
             checkpoint_period: 1_000,
+            checkpoint_replay: true,
             log_period: 50,
             eval_episodes: 10,
             runs_dir: PathBuf::from("runs"),
@@ -266,52 +278,6 @@ impl TrainConfig {
     pub fn algo_name(&self) -> &'static str {
         self.learner.algorithm.short_name()
     }
-}
-
-/// Sets `dotted.path=value` in `table`; the value is TOML (`64`, `1e-3`, `"dst"`,
-/// `{ task = -200.0 }`), and a path segment that is a number indexes an array.
-fn apply_override(table: &mut toml::Table, text: &str) -> Result<(), ConfigError> {
-    let bad = |requirement: &str| ConfigError::Invalid {
-        field: "--set".into(),
-        requirement: requirement.into(),
-        got: format!("{text:?}"),
-    };
-    let (path, value) = text
-        .split_once('=')
-        .ok_or_else(|| bad("dotted.path=value"))?;
-    let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
-        .map_err(|_| bad("a TOML value after '=' (strings in quotes)"))?
-        .remove("v")
-        .ok_or_else(|| bad("a value"))?;
-    let mut node = table;
-    let keys: Vec<&str> = path.trim().split('.').collect();
-    let (last, parents) = keys.split_last().ok_or_else(|| bad("a path"))?;
-    // Walk tables by name; a numeric segment picks an array's item, which must be a table.
-    let mut segments = parents.iter().peekable();
-    while let Some(key) = segments.next() {
-        let child = node
-            .entry(key.to_string())
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        node = match child {
-            toml::Value::Table(t) => t,
-            toml::Value::Array(items) => {
-                let index = segments
-                    .next()
-                    .ok_or_else(|| bad("an array item's field, e.g. objectives.1.epsilon"))?;
-                let i: usize = index
-                    .parse()
-                    .map_err(|_| bad("a number to index an array"))?;
-                match items.get_mut(i) {
-                    Some(toml::Value::Table(t)) => t,
-                    Some(_) => return Err(bad("an array of tables")),
-                    None => return Err(bad("an index inside the array")),
-                }
-            }
-            _ => return Err(bad("a path through tables and arrays")),
-        };
-    }
-    node.insert(last.to_string(), value);
-    Ok(())
 }
 
 #[cfg(test)]

@@ -1,0 +1,162 @@
+//! The pace, the actors' wait and a resume's origin, on a replay filled by hand.
+
+use super::*;
+use crate::replay::{Snippet, SnippetLayout};
+
+fn schedule(ratio: f64, min_replay: usize) -> Schedule {
+    resumed_schedule(
+        ratio,
+        min_replay,
+        Counters::default(),
+        PaceOrigin::default(),
+    )
+}
+
+fn resumed_schedule(
+    ratio: f64,
+    min_replay: usize,
+    counters: Counters,
+    origin: PaceOrigin,
+) -> Schedule {
+    let layout = SnippetLayout {
+        length: 1,
+        obs_dim: 1,
+        action_width: 1,
+        num_rewards: 1,
+        discrete: true,
+        on_policy: false,
+    };
+    let pace = Pace::Ratio {
+        learner_steps_per_env_step: ratio,
+        min_replay_transitions: min_replay,
+    };
+    Schedule::new(SnippetReplay::new(layout, 1000, 0), pace, counters, origin)
+}
+
+fn fill(s: &Schedule, n: usize) {
+    let mut r = s.replay.lock().unwrap();
+    for _ in 0..n {
+        let snippet = Snippet {
+            observations: vec![0.0, 0.0],
+            actions: vec![0.0],
+            rewards: vec![0.0],
+            discounts: vec![1.0],
+            behaviour_log_probs: vec![0.0],
+            valid: vec![1.0],
+        };
+        r.insert(snippet).unwrap();
+    }
+}
+
+#[test]
+fn learner_budget_follows_the_ratio_after_warm_up() {
+    let s = schedule(0.25, 10);
+    fill(&s, 9);
+    s.add_env_steps(9, []);
+    assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "replay not warm yet");
+    fill(&s, 11);
+    s.add_env_steps(11, []);
+    // 20 env steps, 10 past warm-up, ratio 1/4 -> 2 learner steps.
+    assert_eq!(s.allowed(&s.counters(), s.fill()), 2);
+    assert!(s.wait_for_work());
+    s.learner_stepped();
+    assert!(s.wait_for_work());
+    s.learner_stepped();
+    s.stop(None);
+    assert!(
+        !s.wait_for_work(),
+        "no third step: the budget is 2, and the run stopped"
+    );
+}
+
+#[test]
+fn on_policy_allows_one_step_per_batch_of_unrolls() {
+    let layout = SnippetLayout {
+        length: 1,
+        obs_dim: 1,
+        action_width: 1,
+        num_rewards: 1,
+        discrete: true,
+        on_policy: true,
+    };
+    let s = Schedule::new(
+        SnippetReplay::new(layout, usize::MAX, 0),
+        Pace::OnPolicy { batch_size: 4 },
+        Counters::default(),
+        PaceOrigin::default(),
+    );
+    fill(&s, 3);
+    assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "3 of 4 unrolls");
+    fill(&s, 6);
+    assert_eq!(
+        s.allowed(&s.counters(), s.fill()),
+        2,
+        "9 unrolls make two batches"
+    );
+    assert_eq!(s.replay.lock().unwrap().sample(4).batch_size(), 4);
+    s.learner_stepped();
+    assert_eq!(
+        s.allowed(&s.counters(), s.fill()),
+        2,
+        "consuming a batch does not change the budget"
+    );
+}
+
+#[tokio::test]
+async fn actors_wait_until_the_learner_catches_up() {
+    let s = std::sync::Arc::new(schedule(1.0, 1));
+    fill(&s, 3);
+    s.add_env_steps(3, []);
+    let learner = {
+        let s = s.clone();
+        std::thread::spawn(move || {
+            let mut steps = 0;
+            while s.wait_for_work() {
+                s.learner_stepped();
+                steps += 1;
+                if steps == 2 {
+                    break;
+                }
+            }
+        })
+    };
+    tokio::time::timeout(std::time::Duration::from_secs(10), s.wait_for_learner())
+        .await
+        .unwrap();
+    assert_eq!(
+        s.counters().learner_steps,
+        2,
+        "(3 - 1) * 1.0 learner steps before the actor resumes"
+    );
+    learner.join().unwrap();
+}
+
+#[test]
+fn a_resume_without_replay_refills_then_goes_on_at_the_ratio() {
+    // Resumed at 10,000 env steps and 2,497 learner steps with an empty replay.
+    let (env_steps, learner_steps) = (10_000, 2_497);
+    let counters = Counters {
+        env_steps,
+        learner_steps,
+        ..Counters::default()
+    };
+    let origin = PaceOrigin {
+        env_steps,
+        learner_steps,
+        inserted: 0,
+    };
+    let s = resumed_schedule(0.25, 10, counters, origin);
+    fill(&s, 9);
+    s.add_env_steps(9, []);
+    assert_eq!(
+        s.allowed(&s.counters(), s.fill()),
+        learner_steps,
+        "refilling"
+    );
+    fill(&s, 11);
+    s.add_env_steps(11, []);
+    // 20 env steps since the resume, 10 past the refill: 2 more learner steps, where
+    // counting from zero would allow (10,020 - 10) * 0.25 - 2,497 = 5 at once (and
+    // about min_replay * ratio more at a realistic warm-up).
+    assert_eq!(s.allowed(&s.counters(), s.fill()), learner_steps + 2);
+}
