@@ -32,7 +32,7 @@
 //! dims, A discrete actions, K objectives, C critics.
 
 use super::batch::SnippetBatch;
-use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep, sampled_estep_with};
+use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};
 use super::objectives::{QSource, action_norm_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
@@ -203,23 +203,7 @@ impl Learner {
         // 2. E-step (eqs. 32-34).
         let start = Instant::now();
         let q = self.estep_q(&critic_q, &samples);
-        let temperature = self.duals.temperature();
-        let (temperature, epsilon, states) = match &preferences {
-            None => (
-                temperature,
-                self.epsilon.shallow_clone(),
-                StateMean::Uniform,
-            ),
-            Some(p) => (
-                p.temperature(&temperature.reshape([-1, self.epsilon.size()[0]])),
-                p.epsilon.shallow_clone(),
-                StateMean::PerGridPoint(&p.state_weight),
-            ),
-        };
-        let estep: EStepOutput = match &log_prior {
-            None => sampled_estep_with(&q, &temperature, &epsilon, states),
-            Some(prior) => exact_estep_with(&q, prior, &temperature, &epsilon, states),
-        };
+        let estep = self.estep(&q, log_prior.as_ref(), preferences.as_ref());
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
         let e_step_ms = ms_since(start, self.device);
 
@@ -282,6 +266,33 @@ impl Learner {
         )
     }
 
+    /// The E-step on `q [M, N, K]` (with `log_prior [A, N]`: exact, categorical), with
+    /// one ε and eta per objective, or each state's grid point's.
+    fn estep(
+        &self,
+        q: &Tensor,
+        log_prior: Option<&Tensor>,
+        preferences: Option<&StatePreferences>,
+    ) -> EStepOutput {
+        let temperature = self.duals.temperature();
+        let (temperature, epsilon, states) = match preferences {
+            None => (
+                temperature,
+                self.epsilon.shallow_clone(),
+                StateMean::Uniform,
+            ),
+            Some(p) => (
+                p.temperature(&temperature.reshape([-1, self.epsilon.size()[0]])),
+                p.epsilon.shallow_clone(),
+                StateMean::PerGridPoint(&p.state_weight),
+            ),
+        };
+        match log_prior {
+            None => sampled_estep_with(q, &temperature, &epsilon, states),
+            Some(prior) => exact_estep_with(q, prior, &temperature, &epsilon, states),
+        }
+    }
+
     /// `[G, K]` ε table of a conditioned learner.
     fn conditioned_epsilon(&self) -> Tensor {
         self.conditioned
@@ -292,14 +303,18 @@ impl Learner {
 
     /// Policy improvement only (E-step, M-step, duals) on given Q-values of the target
     /// policy's samples, for bandits and tests where Q is known in closed form.
-    /// `q_fn` maps sampled actions `[M, N, D]` to Q `[M, N, K]`.
+    /// `q_fn` maps sampled actions `[M, N, D]` to Q `[M, N, K]`. An ε-conditioned
+    /// learner trains each state at a grid point, as `step` trains each snippet
+    /// (`obs [N, O + F]` carries the features it reads back or overwrites).
     /// Returns (temperatures, policy KL (KL_mu, KL_Sigma) before the update).
     pub fn improve_policy_with(
         &mut self,
         obs: &Tensor,
         q_fn: impl Fn(&Tensor) -> Tensor,
     ) -> (Vec<f32>, Vec<f32>) {
-        let obs = obs.to_device(self.device);
+        // Each state is a snippet of length 0: its own grid point.
+        let (obs, preferences) = self.preferences_of(&obs.to_device(self.device).unsqueeze(0), 0);
+        let obs = obs.squeeze_dim(0);
         let target_out = tch::no_grad(|| self.target_policy.forward(&obs));
         let PolicyOutput::Gaussian(target) = &target_out else {
             panic!("improve_policy_with needs a Gaussian policy");
@@ -310,7 +325,7 @@ impl Learner {
             .normal(&shape, self.device);
         let samples = tch::no_grad(|| target.sample_from(&noise));
         let q = q_fn(&samples);
-        let estep = sampled_estep(&q, &self.duals.temperature(), &self.epsilon);
+        let estep = self.estep(&q, None, preferences.as_ref());
         let online_out = self.policy.forward(&obs);
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
         let policy_kl = self.fit_policy(
