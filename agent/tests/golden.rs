@@ -4,7 +4,8 @@
 //! independently in PyTorch by `golden/make_golden.py`; and three whole MO-MPO learner
 //! steps (`Learner::step` with given parameters and sampling noise) against
 //! `golden/make_golden_step.py` (float64; the JSON files are committed, so no Python
-//! is needed here).
+//! is needed here), and three ε-conditioned ones against
+//! `golden/make_golden_conditioned_step.py`.
 
 use agent::algo::dual::positive;
 use agent::algo::estep::{advantage_estep, exact_estep, sampled_estep};
@@ -438,4 +439,12 @@ fn full_mpo_steps_with_the_summed_kl_constraint() {
 #[test]
 fn full_mpo_steps_with_the_per_dimension_kl_constraint() {
     check_full_steps("mpo_step_per_dimension");
+}
+
+/// ε-conditioned MO-MPO (`golden/make_golden_conditioned_step.py`): the observations
+/// end with each snippet's grid-point feature, and each grid point's temperatures
+/// answer only to its own states.
+#[test]
+fn full_conditioned_mpo_steps_solve_the_e_step_per_grid_point() {
+    check_full_steps("mpo_step_conditioned");
 }

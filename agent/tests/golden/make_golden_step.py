@@ -160,7 +160,7 @@ def policy(p, obs):
 def critic(p, obs, actions):
     """Per-objective Q heads on a shared first layer Linear([s, tanh a]) -> LayerNorm ->
     tanh. obs [N, OBS], actions [..., N, D] -> [..., N, C]."""
-    x = torch.cat([obs.expand(*actions.shape[:-1], OBS), torch.tanh(actions)], -1)
+    x = torch.cat([obs.expand(*actions.shape[:-1], obs.shape[-1]), torch.tanh(actions)], -1)
     w = torch.cat([p["critic.shared.obs.weight"], p["critic.shared.action.weight"]], 1)
     h = x @ w.T + p["critic.shared.obs.bias"]
     h = torch.tanh(
@@ -233,6 +233,10 @@ def real_rows(valid, discounts):
 
 
 class Learner:
+    def temperatures(self):
+        """How many temperatures: one per objective."""
+        return len(REWARDS)
+
     def __init__(self, params, kl_constraint):
         self.per_dim = kl_constraint == "per_dimension"
         self.online = params
@@ -243,11 +247,30 @@ class Learner:
         self.critic_opt = torch.optim.Adam(cri, lr=LR, eps=ADAM_EPS)
         p = D if self.per_dim else 1
         # The Rust duals start from float32 parameters.
-        self.temperature_param = f32([softplus_inv(INIT_TEMPERATURE)] * len(REWARDS)).requires_grad_(True)
+        self.temperature_param = f32([softplus_inv(INIT_TEMPERATURE)] * self.temperatures()).requires_grad_(True)
         alpha0 = [softplus_inv(INIT_ALPHA_MEAN)] * p + [softplus_inv(INIT_ALPHA_COV)] * p
         self.alpha_param = f32(alpha0).requires_grad_(True)
         self.dual_opt = torch.optim.Adam([self.temperature_param, self.alpha_param], lr=DUAL_LR, eps=1e-8)
         self.steps = 0
+
+    def estep(self, q, rows, batch):
+        """Weights [M, R] summed over objectives, the temperature loss of eq. 34 and the
+        realised KL per objective, at the real states `rows`."""
+        eta = F.softplus(self.temperature_param) + 1e-8
+        R, K = len(rows), len(REWARDS)
+        weights = torch.zeros(M, R)
+        temperature_loss, estep_kl = 0.0, []
+        for k in range(K):
+            kl_k = 0.0
+            for i in range(R):
+                w = torch.softmax(q[:, i, k] / eta[k].item(), 0)
+                weights[:, i] += w
+                kl_k += (w * torch.log(M * w)).sum().item() / R
+            estep_kl.append(kl_k)
+            # eq. 34, the integral over pi_old as the mean over the M samples
+            log_mean_exp = sum(torch.log(torch.mean(torch.exp(q[:, i, k] / eta[k]))) for i in range(R)) / R
+            temperature_loss = temperature_loss + eta[k] * (EPSILON[k] + log_mean_exp)
+        return weights, temperature_loss, estep_kl
 
     def step(self, batch, noise):
         obs_all = batch["observations"].reshape(-1, OBS)  # row t*B + b
@@ -286,20 +309,7 @@ class Learner:
         q = torch.stack(
             [q_samples[:, rows, HEAD_OF[n]] if n in HEAD_OF else -executed(a).norm(dim=-1) for n in REWARDS], -1
         )  # [M, R, K]
-        eta = F.softplus(self.temperature_param) + 1e-8
-        R, K = len(rows), len(REWARDS)
-        weights = torch.zeros(M, R)
-        temperature_loss, estep_kl = 0.0, []
-        for k in range(K):
-            kl_k = 0.0
-            for i in range(R):
-                w = torch.softmax(q[:, i, k] / eta[k].item(), 0)
-                weights[:, i] += w
-                kl_k += (w * torch.log(M * w)).sum().item() / R
-            estep_kl.append(kl_k)
-            # eq. 34, the integral over pi_old as the mean over the M samples
-            log_mean_exp = sum(torch.log(torch.mean(torch.exp(q[:, i, k] / eta[k]))) for i in range(R)) / R
-            temperature_loss = temperature_loss + eta[k] * (EPSILON[k] + log_mean_exp)
+        weights, temperature_loss, estep_kl = self.estep(q, rows, batch)
 
         # 3. M-step (eqs. 16-20): decoupled policies, KL(pi_old || .) per dimension.
         mean_o, std_o = policy(self.online, obs_all[rows])
