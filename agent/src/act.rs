@@ -14,16 +14,15 @@ use std::path::{Path, PathBuf};
 
 use tch::{Kind, Tensor};
 
-use crate::eval::{CheckpointPolicy, load_checkpoint_policy};
+use crate::eval::{CheckpointPolicy, EvalError, load_checkpoint_policy};
 use crate::nets::{Acting, ActionKind, ActorPolicy, LearnerDims};
-use crate::train::TrainError;
 
 /// Errors of `agent act`.
 #[derive(Debug, thiserror::Error)]
 pub enum ActError {
     /// The checkpoint could not be loaded.
     #[error(transparent)]
-    Load(#[from] TrainError),
+    Load(#[from] EvalError),
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {

@@ -18,10 +18,31 @@ use crate::env::grpc::{EnvClient, RemoteEnv};
 use crate::env::pool::ServerPool;
 use crate::env::{Env, EpisodeSummary, StepResult};
 use crate::error::EnvError;
+use crate::metrics::mean_of;
 use crate::nets::{Acting, ActorPolicy, LearnerDims};
 use crate::run_config::TrainConfig;
-use crate::train::{TrainError, make_options, mean_of, probe_spec};
+use crate::session::{make_options, probe_spec};
 use crate::video::{Recorder, VideoOptions, VideoReport};
+
+/// Errors of evaluating a policy or a checkpoint.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// A bad argument or config (`--checkpoint`, `--epsilon`, the run's config.toml).
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// Talking to the env server failed.
+    #[error(transparent)]
+    Env(#[from] EnvError),
+    /// The checkpoint could not be found or read.
+    #[error(transparent)]
+    Checkpoint(#[from] crate::checkpoint::CheckpointError),
+    /// Recording the evaluation's video failed.
+    #[error(transparent)]
+    Video(#[from] crate::video::VideoError),
+    /// The checkpoint's parameters do not fit its policy.
+    #[error("policy snapshot: {0}")]
+    Snapshot(String),
+}
 
 /// Watches an evaluation session after its reset and after every step (a video
 /// [`Recorder`] renders it); its errors include the session's own.
@@ -50,6 +71,18 @@ impl EvalObserver for Unobserved {
 
     async fn on_step(&mut self, _: &RemoteEnv, _: &StepResult) -> Result<(), EnvError> {
         Ok(())
+    }
+}
+
+impl EvalObserver for Recorder {
+    type Error = crate::video::VideoError;
+
+    async fn on_reset(&mut self, env: &RemoteEnv) -> Result<(), Self::Error> {
+        self.record_reset(env).await
+    }
+
+    async fn on_step(&mut self, env: &RemoteEnv, step: &StepResult) -> Result<(), Self::Error> {
+        self.record_step(env, step).await
     }
 }
 
@@ -164,7 +197,7 @@ impl CheckpointPolicy {
     /// An ε-conditioned policy acting at `epsilon` (objective name -> ε of the
     /// conditioned objectives; the others keep the grid's first value); an error for a
     /// policy that is not conditioned or a name that is not a conditioned objective.
-    pub fn with_epsilon(mut self, epsilon: &BTreeMap<String, f64>) -> Result<Self, TrainError> {
+    pub fn with_epsilon(mut self, epsilon: &BTreeMap<String, f64>) -> Result<Self, EvalError> {
         let bad = |requirement: String| ConfigError::Invalid {
             field: "--epsilon".into(),
             requirement,
@@ -181,7 +214,7 @@ impl CheckpointPolicy {
 
 /// Load the policy of a checkpoint: a run directory (its latest checkpoint) or one
 /// `checkpoints/step_<n>` directory of a run.
-pub fn load_checkpoint_policy(path: &Path) -> Result<CheckpointPolicy, TrainError> {
+pub fn load_checkpoint_policy(path: &Path) -> Result<CheckpointPolicy, EvalError> {
     let (run_dir, ckpt) = if path.join("checkpoints").join("latest.json").exists() {
         (path.to_path_buf(), latest_checkpoint(path)?.0)
     } else {
@@ -212,7 +245,7 @@ pub fn load_checkpoint_policy(path: &Path) -> Result<CheckpointPolicy, TrainErro
     let mut policy = ActorPolicy::new(&config.learner.network, &dims, Device::Cpu);
     policy
         .load(&learner.policy_snapshot())
-        .map_err(|e| TrainError::Stopped(e.to_string()))?;
+        .map_err(|e| EvalError::Snapshot(e.to_string()))?;
     let grid = learner.preference_grid().cloned();
     if let Some(grid) = &grid {
         policy = policy.at_preference(&grid.default_features());
@@ -236,7 +269,7 @@ pub async fn evaluate_checkpoint(
     connection: &ConnectionConfig,
     episodes: usize,
     video: Option<(&Path, &VideoOptions)>,
-) -> Result<EvalReport, TrainError> {
+) -> Result<EvalReport, EvalError> {
     evaluate_checkpoint_at(path, None, addresses, connection, episodes, video).await
 }
 
@@ -250,7 +283,7 @@ pub async fn evaluate_checkpoint_at(
     connection: &ConnectionConfig,
     episodes: usize,
     video: Option<(&Path, &VideoOptions)>,
-) -> Result<EvalReport, TrainError> {
+) -> Result<EvalReport, EvalError> {
     let mut loaded = load_checkpoint_policy(path)?;
     if let Some(epsilon) = epsilon {
         loaded = loaded.with_epsilon(epsilon)?;

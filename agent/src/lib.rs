@@ -45,6 +45,7 @@ pub mod resume;
 pub mod run_config;
 pub mod run_name;
 pub mod schedule;
+pub mod session;
 pub mod solve;
 pub mod spec;
 pub mod sweep;

@@ -210,6 +210,15 @@ pub fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Resul
     std::fs::rename(&tmp, path)
 }
 
+/// Per objective, the mean over `rows` (each a vector of K values; empty: none).
+pub fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
+    let rows: Vec<&Vec<f64>> = rows.collect();
+    let k = rows.first().map_or(0, |r| r.len());
+    (0..k)
+        .map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64)
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

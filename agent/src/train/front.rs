@@ -8,11 +8,12 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use super::{TrainError, mean_of};
+use super::TrainError;
 use crate::algo::preferences::PreferenceGrid;
 use crate::env::pool::ServerPool;
 use crate::eval::evaluate;
 use crate::front::{FrontPoint, FrontReport, FrontSummary};
+use crate::metrics::mean_of;
 use crate::nets::{ActorPolicy, LearnerDims, PolicySnapshot};
 use crate::plot::{Figure, Series, SeriesKind};
 use crate::run_config::TrainConfig;

@@ -25,29 +25,30 @@ use crate::algo::objectives::{LearnerDims, check_declared};
 use crate::algo::preferences::PreferenceGrid;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
-use crate::env::grpc::EnvClient;
 use crate::env::pool::{ActorServers, ServerPool};
-use crate::env::{Env, EpisodeSummary, MakeOptions};
+use crate::env::{EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
 use crate::front::FrontSummary;
 use crate::learner::{LearnerContext, LearnerLoopError, run_learner};
-use crate::metrics::RunFiles;
+use crate::metrics::{RunFiles, mean_of};
 use crate::nets::ActorPolicy;
 use crate::plot::PlotError;
 use crate::random::{Purpose, StreamKey};
 use crate::resume::Checkpointer;
 use crate::run_config::TrainConfig;
+use crate::session::{make_options, probe_spec};
 use crate::solve::SolveRecord;
-use crate::spec::EnvSpec;
-use crate::video::{PeriodicContext, VideoPlan, VideoReport, record_periodically};
+use crate::video::{VideoPlan, VideoReport};
 use futures::FutureExt;
 use std::panic::AssertUnwindSafe;
+use videos::{PeriodicContext, record_periodically};
 
 mod curves;
 mod finish;
 mod front;
 mod progress;
 mod setup;
+mod videos;
 
 use finish::{FinalEvaluation, final_evaluation, write_reports};
 use progress::{progress_bar, spawn_ticker};
@@ -80,6 +81,9 @@ pub enum TrainError {
     /// Recording a video failed.
     #[error(transparent)]
     Video(#[from] crate::video::VideoError),
+    /// The final evaluation failed.
+    #[error(transparent)]
+    Eval(#[from] crate::eval::EvalError),
     /// A run file could not be written.
     #[error("{path}: {source}")]
     Io {
@@ -380,30 +384,6 @@ pub async fn train(
     };
     write_reports(&summary, &files)?;
     Ok(summary)
-}
-
-pub(crate) fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
-    let rows: Vec<&Vec<f64>> = rows.collect();
-    let k = rows.first().map_or(0, |r| r.len());
-    (0..k)
-        .map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / rows.len() as f64)
-        .collect()
-}
-
-pub(crate) fn make_options(cfg: &TrainConfig, num_envs: usize, seed: u64) -> MakeOptions {
-    MakeOptions {
-        kwargs: cfg.env.kwargs.clone(),
-        seed: Some(seed),
-        ..MakeOptions::new(&cfg.env.id, num_envs)
-    }
-}
-
-/// The env's spec, from a one-instance session made and closed at once.
-pub(crate) async fn probe_spec(client: &EnvClient, cfg: &TrainConfig) -> Result<EnvSpec, EnvError> {
-    let env = client.make(&make_options(cfg, 1, cfg.seed)).await?;
-    let spec = env.spec().clone();
-    env.close().await?;
-    Ok(spec)
 }
 
 /// The text of a caught panic (`panic!` with a message gives a `&str` or a `String`).

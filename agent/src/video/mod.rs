@@ -1,23 +1,20 @@
 //! Videos of a policy: frames from the server's `Render`, tiled for the B instances of
 //! an evaluation session, with each objective's running return written under its
 //! frame, encoded by ffmpeg (`encoder`). `eval --video`, `train --video-every` and
-//! `sweep --video` record through [`Recorder`], an [`EvalObserver`].
+//! `sweep --video` record through [`Recorder`] (`eval::EvalObserver` drives it).
 
 mod canvas;
 mod encoder;
-mod periodic;
 
 use std::path::{Path, PathBuf};
 
 pub use canvas::{Caption, Layout};
 pub use encoder::{Encoder, find_ffmpeg};
-pub use periodic::{PeriodicContext, VideoPlan, record_periodically};
 
 use crate::env::StepResult;
 use crate::env::frames::RenderOptions;
 use crate::env::grpc::RemoteEnv;
 use crate::error::EnvError;
-use crate::eval::EvalObserver;
 
 /// At most this many instances are tiled into one video (a 4 x 4 grid).
 pub const MAX_TILES: usize = 16;
@@ -184,14 +181,18 @@ impl Recorder {
     }
 }
 
-impl EvalObserver for Recorder {
-    type Error = VideoError;
-
-    async fn on_reset(&mut self, env: &RemoteEnv) -> Result<(), VideoError> {
+impl Recorder {
+    /// The session was just reset: its first frame.
+    pub async fn record_reset(&mut self, env: &RemoteEnv) -> Result<(), VideoError> {
         self.capture(env).await
     }
 
-    async fn on_step(&mut self, env: &RemoteEnv, step: &StepResult) -> Result<(), VideoError> {
+    /// The session just took `step`: its frame, under the running returns.
+    pub async fn record_step(
+        &mut self,
+        env: &RemoteEnv,
+        step: &StepResult,
+    ) -> Result<(), VideoError> {
         let k = self.objectives.len();
         for i in 0..self.tiles {
             self.steps[i] += 1;
@@ -221,4 +222,13 @@ pub struct VideoReport {
     pub path: PathBuf,
     /// Video frames in it.
     pub frames: usize,
+}
+
+/// What a training run records.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct VideoPlan {
+    /// Env steps between videos during training; None = only the final evaluation's.
+    pub every: Option<u64>,
+    /// Frame size, camera and rate.
+    pub options: VideoOptions,
 }

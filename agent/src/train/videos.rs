@@ -8,26 +8,17 @@ use std::time::Duration;
 use tch::Device;
 use tokio::sync::watch;
 
-use super::VideoOptions;
 use crate::algo::objectives::LearnerDims;
 use crate::env::grpc::EnvClient;
 use crate::eval::evaluate_recorded;
 use crate::nets::{ActorPolicy, PolicySnapshot};
 use crate::run_config::TrainConfig;
 use crate::schedule::Schedule;
-
-/// What a training run records.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct VideoPlan {
-    /// Env steps between videos during training; None = only the final evaluation's.
-    pub every: Option<u64>,
-    /// Frame size, camera and rate.
-    pub options: VideoOptions,
-}
+use crate::video::VideoOptions;
 
 /// The parts of a running training job the recorder reads.
 #[derive(Debug)]
-pub struct PeriodicContext {
+pub(super) struct PeriodicContext {
     /// Where evaluation sessions are made.
     pub client: EnvClient,
     /// The run's config (env, network).
@@ -47,7 +38,7 @@ pub struct PeriodicContext {
 /// Record a video each time the env-step count passes the next multiple of `every`,
 /// until the run stops. A failed video is logged and ends the periodic videos; it
 /// never stops training.
-pub async fn record_periodically(ctx: PeriodicContext, every: u64, options: VideoOptions) {
+pub(super) async fn record_periodically(ctx: PeriodicContext, every: u64, options: VideoOptions) {
     let every = every.max(1);
     let mut next = (ctx.schedule.counters().env_steps / every + 1) * every;
     loop {
