@@ -198,6 +198,30 @@ pub fn format_vector(values: &[f64]) -> String {
     format!("[{}]", parts.join(", "))
 }
 
+/// The temperatures as a user reads them: the K values `[a, b]`, or for an
+/// ε-conditioned learner's G x K (grid point by grid point) each objective's range
+/// over the grid, `[0.0047..18.6, 4.3..11.0] over 22 grid points`.
+pub fn format_temperatures(temperature: &[f32], k: usize) -> String {
+    let values: Vec<f64> = temperature.iter().map(|&t| f64::from(t)).collect();
+    if k == 0 || values.len() <= k {
+        return format_vector(&values);
+    }
+    let ranges: Vec<String> = (0..k)
+        .map(|j| {
+            let column = values.iter().skip(j).step_by(k);
+            let (lo, hi) = column.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+            format!("{}..{}", format_value(lo), format_value(hi))
+        })
+        .collect();
+    format!(
+        "[{}] over {} grid points",
+        ranges.join(", "),
+        values.len() / k
+    )
+}
+
 /// Write `value` as pretty JSON to `path` atomically (temp file + rename).
 pub fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
     let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
@@ -221,6 +245,16 @@ pub fn mean_of<'a>(rows: impl Iterator<Item = &'a Vec<f64>>) -> Vec<f64> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn conditioned_temperatures_show_each_objectives_range() {
+        assert_eq!(super::format_temperatures(&[1.5, 2.0], 2), "[1.50, 2.00]");
+        let grid = [1.0, 5.0, 3.0, 0.5, 2.0, 4.0];
+        assert_eq!(
+            super::format_temperatures(&grid, 2),
+            "[1.00..3.00, 0.500..5.00] over 3 grid points"
+        );
+    }
+
     use super::*;
 
     #[test]

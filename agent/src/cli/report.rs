@@ -2,7 +2,7 @@
 //! the summaries; only the binary prints them).
 
 use agent::eval::EvalReport;
-use agent::metrics::{format_value, format_vector};
+use agent::metrics::{format_temperatures, format_value, format_vector};
 use agent::sweep::{FrontSummary, setting_label};
 use agent::train::TrainSummary;
 
@@ -26,8 +26,10 @@ pub(crate) fn train(s: &TrainSummary) {
         "  recent training return {}",
         format_vector(&s.recent_train_return)
     );
-    let eta: Vec<f64> = s.temperature.iter().map(|&t| f64::from(t)).collect();
-    println!("  temperatures eta_k     {}", format_vector(&eta));
+    println!(
+        "  temperatures eta_k     {}",
+        format_temperatures(&s.temperature, s.objectives.len())
+    );
     if let Some(signal) = &s.interrupted {
         println!(
             "  interrupted by {signal}: no evaluation; continue with `agent train --resume {}`",

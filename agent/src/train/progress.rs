@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use tokio::task::JoinHandle;
 
 use crate::algo::LearnerStats;
+use crate::metrics::format_temperatures;
 use crate::run_config::TrainConfig;
 use crate::schedule::{Counters, Schedule};
 
@@ -111,11 +112,10 @@ fn progress_message(c: &Counters, names: &[String], stats: Option<&LearnerStats>
         fmt(&c.recent_mean_return())
     );
     if let Some(s) = stats {
-        let eta: Vec<f64> = s.temperature.iter().map(|&x| f64::from(x)).collect();
         let kl: Vec<f64> = s.policy_kl.iter().map(|&x| f64::from(x)).collect();
         msg.push_str(&format!(
-            " | eta [{}] | KL [{}]",
-            fmt(&eta),
+            " | eta {} | KL [{}]",
+            format_temperatures(&s.temperature, names.len()),
             kl.iter()
                 .map(|x| format!("{x:.1e}"))
                 .collect::<Vec<_>>()
