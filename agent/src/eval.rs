@@ -206,7 +206,11 @@ impl CheckpointPolicy {
         let grid = self.grid.as_ref().ok_or_else(|| {
             bad("given only for an ε-conditioned policy (learner.conditioning); this checkpoint's policy has its ε fixed".into())
         })?;
-        let eps = grid.epsilon_for(epsilon).map_err(bad)?;
+        let eps = grid.epsilon_for(epsilon).map_err(|why| {
+            bad(format!(
+                "conditioned objectives, each with an ε > 0 ({why})"
+            ))
+        })?;
         self.policy = self.policy.at_preference(&grid.features_of(&eps));
         Ok(self)
     }
