@@ -35,6 +35,8 @@ pub enum Purpose {
     LearnerActing,
     /// Which snippets the replay samples.
     Replay,
+    /// The shuffle of a V-MPO batch's unrolls into minibatches; `index` is the epoch.
+    Minibatches,
 }
 
 impl Purpose {
@@ -45,6 +47,7 @@ impl Purpose {
             Purpose::Acting => 3,
             Purpose::LearnerActing => 4,
             Purpose::Replay => 5,
+            Purpose::Minibatches => 6,
         }
     }
 }
