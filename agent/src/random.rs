@@ -35,14 +35,16 @@ pub enum Purpose {
     LearnerActing,
     /// Which snippets the replay samples.
     Replay,
-    /// Seeds of the env sessions an actor makes after its first; `index` is the
-    /// actor number, the counter its act count.
-    EnvSeeds,
+    /// The shuffle of a V-MPO batch's unrolls into minibatches; `index` is the epoch.
+    Minibatches,
     /// The preference (grid point) of each new episode of one actor's instances
     /// (`index` is the actor number; counter: the actor's step).
     ActingPreference,
     /// The grid points a conditioned learner trains its batch's snippets at.
     LearnerPreference,
+    /// Seeds of the env sessions an actor makes after its first; `index` is the
+    /// actor number, the counter its act count.
+    EnvSeeds,
 }
 
 impl Purpose {
@@ -53,9 +55,11 @@ impl Purpose {
             Purpose::Acting => 3,
             Purpose::LearnerActing => 4,
             Purpose::Replay => 5,
-            Purpose::EnvSeeds => 6,
+            // Codes are fixed once published: a new purpose takes the next free one.
+            Purpose::Minibatches => 6,
             Purpose::ActingPreference => 7,
             Purpose::LearnerPreference => 8,
+            Purpose::EnvSeeds => 9,
         }
     }
 }

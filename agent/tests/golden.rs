@@ -7,6 +7,9 @@
 //! is needed here), and three ε-conditioned ones against
 //! `golden/make_golden_conditioned_step.py`.
 
+#[path = "golden/compare.rs"]
+mod compare;
+
 use agent::algo::dual::positive;
 use agent::algo::estep::{advantage_estep, exact_estep, sampled_estep};
 use agent::algo::movmpo::{UnrollTargetInputs, unroll_targets};
@@ -14,61 +17,13 @@ use agent::algo::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_
 use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use agent::algo::{Learner, LearnerDims, NoiseSource, SnippetBatch};
 use agent::config::LearnerConfig;
-use agent::nets::{GaussianParams, NamedArray};
+use agent::nets::GaussianParams;
+use compare::{
+    assert_close, assert_close_scalar, assert_close_vec, golden, named_arrays, scalar, tensor,
+    vector,
+};
 use serde_json::Value;
-use tch::{Device, Kind, Tensor};
-
-fn golden(name: &str) -> Value {
-    let path = format!("{}/tests/golden/{name}.json", env!("CARGO_MANIFEST_DIR"));
-    serde_json::from_str(&std::fs::read_to_string(&path).expect("golden file")).expect("valid json")
-}
-
-fn tensor(v: &Value) -> Tensor {
-    let shape: Vec<i64> = v["shape"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_i64().unwrap())
-        .collect();
-    let data: Vec<f32> = v["data"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap() as f32)
-        .collect();
-    Tensor::from_slice(&data).reshape(shape.as_slice())
-}
-
-fn vector(v: &Value) -> Tensor {
-    let data: Vec<f32> = v
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap() as f32)
-        .collect();
-    Tensor::from_slice(&data)
-}
-
-fn scalar(v: &Value) -> f64 {
-    v.as_f64().unwrap()
-}
-
-#[track_caller]
-fn assert_close(got: &Tensor, want: &Tensor, what: &str) {
-    assert_eq!(got.size(), want.size(), "{what}: shape");
-    let err = (got.to_kind(Kind::Double) - want.to_kind(Kind::Double)).abs();
-    let tol = want.to_kind(Kind::Double).abs() * 1e-5 + 1e-5;
-    let bad = (err - tol).max().double_value(&[]);
-    assert!(bad <= 0.0, "{what}: got {got:?}, want {want:?}");
-}
-
-#[track_caller]
-fn assert_close_scalar(got: f64, want: f64, what: &str) {
-    assert!(
-        (got - want).abs() <= 1e-5 + 1e-5 * want.abs(),
-        "{what}: got {got}, want {want}"
-    );
-}
+use tch::{Device, Tensor};
 
 #[test]
 fn sampled_estep_weights_loss_and_dual_gradient() {
@@ -327,34 +282,6 @@ fn vmpo_policy_fit_and_multiplier_losses() {
         &(w * n).unsqueeze(0),
         KlConstraint::Summed,
     );
-}
-
-/// Named parameters from a golden `{name: {shape, data}}` object.
-fn named_arrays(v: &Value) -> Vec<NamedArray> {
-    v.as_object()
-        .unwrap()
-        .iter()
-        .map(|(name, t)| NamedArray {
-            name: name.clone(),
-            shape: t["shape"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x.as_i64().unwrap())
-                .collect(),
-            data: t["data"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x.as_f64().unwrap() as f32)
-                .collect(),
-        })
-        .collect()
-}
-
-#[track_caller]
-fn assert_close_vec(got: &[f32], want: &Value, what: &str) {
-    assert_close(&Tensor::from_slice(got), &vector(want), what);
 }
 
 /// Whole learner steps (`Learner::step`: Retrace with the target networks, critic

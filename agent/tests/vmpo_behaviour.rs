@@ -93,3 +93,80 @@ fn a_zero_epsilon_objective_has_no_influence() {
         "eps_left = 0: expected the optimum +1 of the right objective, got {only_right}"
     );
 }
+
+/// `bandit` with `vmpo.epochs` and `vmpo.minibatches` set and pi_old never renewed
+/// within the test, so that learner steps differ only in their updates.
+fn bandit_passes(epochs: usize, minibatches: usize) -> Learner {
+    let mut cfg = common::bandit_config(Algorithm::MoVmpo, [0.1, 0.05], vec![16], 3);
+    cfg.vmpo.unroll_length = 1;
+    cfg.vmpo.batch_size = UNROLLS as usize;
+    cfg.vmpo.learning_rate = 3e-3;
+    cfg.vmpo.target_update_period = 1000;
+    cfg.vmpo.epochs = epochs;
+    cfg.vmpo.minibatches = minibatches;
+    common::bandit_learner(cfg)
+}
+
+fn max_parameter_difference(a: &Learner, b: &Learner) -> f64 {
+    a.parameters()
+        .iter()
+        .zip(b.parameters())
+        .map(|(x, y)| {
+            assert_eq!(x.name, y.name);
+            x.data
+                .iter()
+                .zip(&y.data)
+                .map(|(u, v)| f64::from((u - v).abs()))
+                .fold(0.0, f64::max)
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn two_epochs_are_two_updates_on_the_same_batch() {
+    let _rng = common::exclusive_rng();
+    let mut once = bandit_passes(1, 1);
+    let mut twice = bandit_passes(2, 1);
+    let b = batch(&once);
+    once.step(&b).unwrap();
+    let after_one = once.parameters();
+    once.step(&b).unwrap();
+    let stats = twice.step(&b).unwrap();
+    assert_eq!(twice.step_count(), 1, "one learner step, two updates");
+    assert!(
+        max_parameter_difference(&once, &twice) < 1e-6,
+        "epochs = 2 should equal two steps on the batch with the same pi_old"
+    );
+    assert!(
+        after_one
+            .iter()
+            .zip(twice.parameters())
+            .any(|(x, y)| x.data != y.data),
+        "the second pass changed nothing"
+    );
+    assert!(
+        stats.policy_kl[0] > 0.0,
+        "the second pass is measured from pi_old"
+    );
+}
+
+#[test]
+fn minibatches_split_the_batch_into_seeded_shuffled_updates() {
+    let _rng = common::exclusive_rng();
+    let mut whole = bandit_passes(1, 1);
+    let mut split = bandit_passes(1, 4);
+    let mut again = bandit_passes(1, 4);
+    let b = batch(&whole);
+    whole.step(&b).unwrap();
+    split.step(&b).unwrap();
+    again.step(&b).unwrap();
+    assert!(
+        max_parameter_difference(&whole, &split) > 1e-5,
+        "four updates on quarters should differ from one on the whole batch"
+    );
+    assert_eq!(
+        max_parameter_difference(&split, &again),
+        0.0,
+        "the shuffle is keyed by seed and step"
+    );
+}

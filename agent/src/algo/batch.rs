@@ -93,6 +93,20 @@ impl SnippetBatch {
         expect("valid", &self.valid, &[t, b], Kind::Float)
     }
 
+    /// The snippets at `index` (on the batch's device), in that order.
+    /// # Shapes
+    /// `index [B'] i64 -> ` a batch of B' snippets.
+    pub fn select_unrolls(&self, index: &Tensor) -> SnippetBatch {
+        SnippetBatch {
+            observations: self.observations.index_select(1, index),
+            actions: self.actions.index_select(1, index),
+            rewards: self.rewards.index_select(1, index),
+            discounts: self.discounts.index_select(1, index),
+            behaviour_log_probs: self.behaviour_log_probs.index_select(1, index),
+            valid: self.valid.index_select(1, index),
+        }
+    }
+
     /// The same batch on `device`.
     pub fn to_device(&self, device: Device) -> SnippetBatch {
         SnippetBatch {

@@ -20,6 +20,13 @@
 //!    evaluates online and target policies with the same latent noise.
 //! 4. Every `target_update_period` steps pi_old is copied from the online policy.
 //!
+//! V-MPO uses each batch once (one update per learner step, the default). As an option
+//! of ours, `vmpo.epochs` passes over `vmpo.minibatches` shuffled subsets of the
+//! unrolls do steps 1-3 once per subset (PPO's reuse of on-policy data); all of a
+//! step's updates share pi_old, so the trust region bounds how far they move the
+//! policy together, and the targets and advantages are recomputed with the current
+//! critic in every update.
+//!
 //! Shape legend: T unroll length, B unrolls, N = TB pairs, D action dims, A discrete
 //! actions, K objectives, C critics.
 
@@ -31,9 +38,9 @@ use super::state::{
     Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since,
 };
 use crate::nets::PolicyOutput;
-use crate::random::Purpose;
+use crate::random::{Purpose, StreamKey};
 use std::time::Instant;
-use tch::{Kind, Tensor};
+use tch::{Device, Kind, Tensor};
 
 /// Inputs of the T-step targets.
 #[derive(Debug)]
@@ -68,12 +75,58 @@ pub fn unroll_targets(x: &UnrollTargetInputs<'_>) -> Tensor {
     Tensor::stack(&out, 0)
 }
 
+/// Phase timings of two updates of one learner step, added.
+fn summed(a: &PhaseTimings, b: &PhaseTimings) -> PhaseTimings {
+    PhaseTimings {
+        policy_evaluation_ms: a.policy_evaluation_ms + b.policy_evaluation_ms,
+        e_step_ms: a.e_step_ms + b.e_step_ms,
+        m_step_ms: a.m_step_ms + b.m_step_ms,
+        target_update_ms: a.target_update_ms + b.target_update_ms,
+    }
+}
+
 impl Learner {
-    /// One MO-V-MPO step (critic update, step 1, step 2, duals, target update) on a
-    /// checked batch of on-policy unrolls.
+    /// One MO-V-MPO learner step on a checked batch of on-policy unrolls: `vmpo.epochs`
+    /// passes, each over `vmpo.minibatches` disjoint subsets of the unrolls (one
+    /// subset, the whole batch, by default), then the target update. The statistics
+    /// are the last update's; the timings are summed over the updates.
     pub(super) fn vmpo_step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
-        let start = Instant::now();
         let batch = batch.to_device(self.device);
+        let (epochs, parts) = (self.cfg.vmpo.epochs, self.cfg.vmpo.minibatches as i64);
+        let b = batch.batch_size();
+        let mut measured: Option<StepMeasures> = None;
+        for epoch in 0..epochs {
+            let subsets = if parts == 1 {
+                vec![None]
+            } else {
+                // A fresh shuffle per epoch (as PPO), keyed by (seed, step, epoch).
+                let mut stream =
+                    StreamKey::new(self.cfg.seed, Purpose::Minibatches, epoch as u64).at(self.step);
+                let order = stream.uniform(&[b], Device::Cpu).argsort(0, false);
+                order.chunk(parts, 0).into_iter().map(Some).collect()
+            };
+            for subset in subsets {
+                let m = match subset {
+                    None => self.vmpo_update(&batch),
+                    Some(index) => {
+                        self.vmpo_update(&batch.select_unrolls(&index.to_device(self.device)))
+                    }
+                };
+                measured = Some(match measured {
+                    None => m,
+                    Some(previous) => StepMeasures {
+                        timings: summed(&previous.timings, &m.timings),
+                        ..m
+                    },
+                });
+            }
+        }
+        self.finish_step(measured.expect("vmpo.epochs >= 1 is validated"))
+    }
+
+    /// One update (critic, step 1, step 2, duals) on the unrolls of `batch`.
+    fn vmpo_update(&mut self, batch: &SnippetBatch) -> StepMeasures {
+        let start = Instant::now();
         let (t_len, b) = (batch.len(), batch.batch_size());
         let n = t_len * b;
         let heads = self.bound.critic_names.len() as i64;
@@ -178,8 +231,7 @@ impl Learner {
         );
         let m_step_ms = ms_since(start, self.device);
 
-        // 4. pi_old.
-        self.finish_step(StepMeasures {
+        StepMeasures {
             critic_loss: per_head,
             estep_kl: estep.kl,
             value_mean,
@@ -190,7 +242,7 @@ impl Learner {
                 m_step_ms,
                 target_update_ms: 0.0,
             },
-        })
+        }
     }
 }
 

@@ -53,13 +53,21 @@ pub struct VmpoConfig {
     pub learning_rate: f64,
     /// Adam epsilon. Not in Table 5; 1e-8 (Adam's usual value).
     pub adam_eps: f64,
-    /// Table 5 "batch size" 128 unrolls per learner step; each is used once.
+    /// Table 5 "batch size" 128 unrolls per learner step; each is used once (more often
+    /// with `epochs` > 1).
     pub batch_size: usize,
     /// Learner steps between copies of the policy into pi_old, the target of the KL
     /// trust region (eq. 25). Not in the paper; V-MPO's T_target, 100.
     pub target_update_period: u64,
     /// Global-norm clip of policy and critic gradients. Not in the paper; off.
     pub grad_clip_norm: Option<f64>,
+    /// Passes over each batch. Not in the paper: V-MPO uses each batch once (1, the
+    /// default). More passes do more updates per env step, as PPO's epochs do; every
+    /// update of a learner step is bounded by the same pi_old (see `target_update_period`).
+    pub epochs: usize,
+    /// Disjoint minibatches of unrolls per pass, shuffled afresh each pass; one update
+    /// each. Not in the paper; 1 (the whole batch). Must divide `batch_size`.
+    pub minibatches: usize,
 }
 
 impl Default for VmpoConfig {
@@ -83,6 +91,8 @@ impl Default for VmpoConfig {
             batch_size: 128,
             target_update_period: 100,
             grad_clip_norm: None,
+            epochs: 1,
+            minibatches: 1,
         }
     }
 }
@@ -133,6 +143,49 @@ impl VmpoConfig {
         if let Some(c) = v.grad_clip_norm {
             check(finite_pos(c), "vmpo.grad_clip_norm", "> 0 when set", c)?;
         }
+        check(v.epochs >= 1, "vmpo.epochs", ">= 1", v.epochs)?;
+        check(
+            v.minibatches >= 1 && v.batch_size.is_multiple_of(v.minibatches),
+            "vmpo.minibatches",
+            &format!(">= 1 and a divisor of vmpo.batch_size ({})", v.batch_size),
+            v.minibatches,
+        )?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn passes_need_one_epoch_and_minibatches_that_divide_the_batch() {
+        let uneven = VmpoConfig {
+            batch_size: 64,
+            minibatches: 3,
+            ..VmpoConfig::default()
+        };
+        let err = uneven.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("vmpo.minibatches") && err.contains("(64)") && err.contains('3'),
+            "{err}"
+        );
+        let none = VmpoConfig {
+            epochs: 0,
+            ..VmpoConfig::default()
+        };
+        assert!(
+            none.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("vmpo.epochs")
+        );
+        let ok = VmpoConfig {
+            batch_size: 64,
+            minibatches: 4,
+            epochs: 3,
+            ..VmpoConfig::default()
+        };
+        ok.validate().unwrap();
     }
 }

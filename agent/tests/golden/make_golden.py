@@ -1,8 +1,8 @@
 """Expected values for agent/tests/golden.rs, computed independently in PyTorch (float64).
 
 Run from the repo root:  .venv/bin/python agent/tests/golden/make_golden.py
-It rewrites agent/tests/golden/*.json (the whole-step ones through make_golden_step.py
-and make_golden_conditioned_step.py).
+It rewrites agent/tests/golden/*.json (the whole-step ones through make_golden_step.py,
+make_golden_vmpo_step.py and make_golden_conditioned_step.py).
 The formulas follow the paper (Abdolmaleki et al. 2020, appendix C.2, C.3, D, E.1) directly, with explicit loops and torch.distributions
 where possible, not the vectorised forms used by the Rust code.
 """
@@ -12,6 +12,7 @@ import math
 import pathlib
 
 import make_golden_step
+import make_golden_vmpo_step
 import torch
 
 torch.set_default_dtype(torch.float64)
@@ -454,6 +455,7 @@ write(
     },
 )
 make_golden_step.main()
+make_golden_vmpo_step.main()
 # Imported only now: it widens make_golden_step's observation for the conditioned steps.
 import make_golden_conditioned_step  # noqa: E402
 
