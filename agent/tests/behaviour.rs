@@ -4,9 +4,8 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims};
+use agent::algo::Learner;
 use agent::config::{Algorithm, ConditioningConfig};
-use agent::nets::ActionKind;
 use tch::{Device, Kind, Tensor};
 
 /// One test at a time (`common::exclusive_rng`), from seed 0.
@@ -124,14 +123,7 @@ fn conditioned_bandit(values: &[f64]) -> Learner {
         epsilon: [("right".to_string(), values.to_vec())].into(),
         relabel: true,
     });
-    let dims = LearnerDims {
-        action_bounds: None,
-        obs_dim: 1,
-        action: ActionKind::Continuous { dim: 1 },
-        reward_names: vec!["right".into(), "left".into()],
-        obs_leaves: Vec::new(),
-    }
-    .with_preference_features(1);
+    let dims = common::bandit_dims().with_preference_features(1);
     Learner::new(cfg, dims, Device::Cpu).unwrap()
 }
 

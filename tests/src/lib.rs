@@ -17,6 +17,26 @@ pub fn smoke_config(runs_dir: &Path) -> TrainConfig {
     cfg
 }
 
+/// Column `name` of a run's `episodes.csv`, one value per training episode in order.
+pub fn episode_column(run_dir: &Path, name: &str) -> Vec<f64> {
+    let text = std::fs::read_to_string(run_dir.join("episodes.csv")).expect("episodes.csv");
+    let mut lines = text.lines();
+    let col = lines
+        .next()
+        .expect("a header")
+        .split(',')
+        .position(|c| c == name)
+        .unwrap_or_else(|| panic!("no column {name} in episodes.csv"));
+    lines
+        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
+        .collect()
+}
+
+/// The mean of `v`.
+pub fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
 /// A started server and a client connected to it.
 #[derive(Debug)]
 pub struct Harness {

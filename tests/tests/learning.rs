@@ -8,21 +8,11 @@ use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::train::{TrainOptions, train};
-use integration_tests::smoke_config;
+use integration_tests::{episode_column, smoke_config};
 
 /// Mean of column `name` over rows `range` of a run's episodes.csv.
 fn episode_mean(run_dir: &Path, name: &str, take_last: bool, n: usize) -> f64 {
-    let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
-    let mut lines = text.lines();
-    let col = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == name)
-        .expect("column");
-    let values: Vec<f64> = lines
-        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
-        .collect();
+    let values = episode_column(run_dir, name);
     assert!(values.len() >= 2 * n, "only {} episodes", values.len());
     let slice = if take_last {
         &values[values.len() - n..]

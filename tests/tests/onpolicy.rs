@@ -9,24 +9,7 @@ use std::path::Path;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train};
-
-fn column(run_dir: &Path, name: &str) -> Vec<f64> {
-    let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
-    let mut lines = text.lines();
-    let col = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == name)
-        .expect("column");
-    lines
-        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
-        .collect()
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
-}
+use integration_tests::{episode_column, mean};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn movmpo_on_dst_learns_the_preferred_objective() {
@@ -51,7 +34,7 @@ async fn movmpo_on_dst_learns_the_preferred_objective() {
     // epsilon_time / epsilon_treasure = 50: the random start wanders before it finds a
     // treasure (time return about -4.4 over the first 200 episodes when written); the
     // trained policy heads for the nearest one (about -2.4 over the last 200).
-    let time = column(&summary.run_dir, "return_time");
+    let time = episode_column(&summary.run_dir, "return_time");
     assert!(time.len() >= 400, "only {} episodes", time.len());
     let (first, last) = (mean(&time[..200]), mean(&time[time.len() - 200..]));
     assert!(

@@ -9,26 +9,9 @@ use std::path::Path;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, TrainSummary, train};
+use integration_tests::{episode_column, mean};
 
 static ONE_RUN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
-
-fn column(run_dir: &Path, name: &str) -> Vec<f64> {
-    let text = std::fs::read_to_string(run_dir.join("episodes.csv")).unwrap();
-    let mut lines = text.lines();
-    let col = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == name)
-        .expect("column");
-    lines
-        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
-        .collect()
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
-}
 
 /// A finished run and the directory that holds its files.
 struct Trained {
@@ -74,8 +57,8 @@ async fn scalarized_vmpo_on_dst_learns_its_weighted_return() {
     // w = (time 1, treasure 0.1): the random start wanders before it finds a treasure;
     // the trained policy heads for the nearest one (measured when written: -3.94 over
     // the first 200 episodes, -1.02 over the last 200, -0.93 deterministic).
-    let time = column(&summary.run_dir, "return_time");
-    let treasure = column(&summary.run_dir, "return_treasure");
+    let time = episode_column(&summary.run_dir, "return_time");
+    let treasure = episode_column(&summary.run_dir, "return_treasure");
     let scalarized: Vec<f64> = time
         .iter()
         .zip(&treasure)

@@ -211,12 +211,16 @@ pub fn bandit_config(
 
 /// A learner for `bandit_config`'s bandit.
 pub fn bandit_learner(cfg: LearnerConfig) -> Learner {
-    let dims = LearnerDims {
+    Learner::new(cfg, bandit_dims(), Device::Cpu).unwrap()
+}
+
+/// The bandit's sizes: one observation, a 1-D continuous action, rewards right and left.
+pub fn bandit_dims() -> LearnerDims {
+    LearnerDims {
         action_bounds: None,
         obs_dim: 1,
         action: ActionKind::Continuous { dim: 1 },
         reward_names: vec!["right".into(), "left".into()],
         obs_leaves: Vec::new(),
-    };
-    Learner::new(cfg, dims, Device::Cpu).unwrap()
+    }
 }

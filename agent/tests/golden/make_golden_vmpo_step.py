@@ -40,6 +40,7 @@ import pathlib
 
 import torch
 import torch.nn.functional as F
+from make_golden_step import f32, softplus_inv, t
 
 torch.set_default_dtype(torch.float64)
 OUT = pathlib.Path(__file__).resolve().parent
@@ -79,20 +80,6 @@ CATEGORICAL = {
     "head_weights": [[0.7], [0.3]],
     "epsilon": [0.1],
 }
-
-
-def t(x):
-    x = torch.as_tensor(x)
-    return {"shape": list(x.shape), "data": x.detach().flatten().tolist()}
-
-
-def f32(x):
-    """x rounded to float32 and held as float64: an input both sides read exactly."""
-    return torch.as_tensor(x).to(torch.float32).to(torch.float64)
-
-
-def softplus_inv(v):
-    return math.log(math.expm1(v - 1e-8))
 
 
 def config(case):
