@@ -27,8 +27,9 @@ import gymnasium
 import numpy as np
 
 from env_server import spaces
+from env_server.construction import build_instances
 from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError, quote
-from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, RenderBatch, build_instances
+from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, RenderBatch
 from env_server.registry import EnvEntry
 from env_server.reward_scale import REWARD_SCALE, check_reward_scale, scaled
 from env_server.task import Objective, Task

@@ -11,8 +11,9 @@ import pytest
 from conftest import make
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.construction import _check_action_norm, _check_task
 from env_server.errors import Internal
-from env_server.instances import TaskInfo, _check_action_norm, _check_task
+from env_server.instances import TaskInfo
 from env_server.remote import objectives
 from env_server.task import ClosedForm, Objective, StepOutcome, Task
 from env_server.wire import objectives_pb

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from env_server.backends.gymnasium import GymTask
+from env_server.construction import build_instances
 from env_server.errors import InvalidArgument
-from env_server.instances import build_instances
 from env_server.registry import Registry
 from env_server.task import ClosedForm, action_norm_bounds
 

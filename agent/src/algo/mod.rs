@@ -20,6 +20,7 @@ pub mod preferences;
 pub mod retrace;
 pub mod state;
 pub mod stats;
+pub mod update;
 
 pub use batch::{BatchError, SnippetBatch};
 pub use noise::{NoiseError, NoiseSource};

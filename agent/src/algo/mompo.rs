@@ -36,9 +36,8 @@ use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with}
 use super::objectives::{QSource, action_norm_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
-use super::state::{
-    Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since, to_vec,
-};
+use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
+use super::update::StepMeasures;
 use crate::nets::{ActionKind, GaussianParams, PolicyOutput};
 use crate::random::Purpose;
 use std::time::Instant;

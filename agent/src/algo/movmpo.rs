@@ -34,9 +34,8 @@ use super::batch::SnippetBatch;
 use super::estep::advantage_estep;
 use super::mompo::masked_half_mse;
 use super::objectives::QSource;
-use super::state::{
-    Critics, Learner, LearnerError, LearnerStats, PhaseTimings, StepMeasures, ms_since,
-};
+use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since};
+use super::update::StepMeasures;
 use crate::nets::PolicyOutput;
 use crate::random::{Purpose, StreamKey};
 use std::time::Instant;

@@ -19,8 +19,8 @@ use std::collections::BTreeMap;
 
 use tch::{Device, Kind, Tensor};
 
-use super::objectives::BoundObjective;
-use crate::config::ConditioningConfig;
+use super::objectives::{BoundObjective, BoundObjectives, LearnerDims};
+use crate::config::{ConditioningConfig, ConfigError};
 use crate::random::RandomStream;
 
 /// One conditioned objective: its place among the K and its feature map.
@@ -211,6 +211,48 @@ impl PreferenceGrid {
         Tensor::from_slice(&flat)
             .reshape([self.len() as i64, self.num_features() as i64])
             .to_device(device)
+    }
+}
+
+/// What an ε-conditioned learner adds (`learner.conditioning`).
+#[derive(Debug)]
+pub(crate) struct Conditioned {
+    /// The grid of preferences.
+    pub grid: PreferenceGrid,
+    /// `[G, K]` ε of every grid point.
+    pub epsilon: Tensor,
+    /// `[G, F]` input features of every grid point.
+    pub features: Tensor,
+    /// Train each snippet at a freshly drawn grid point.
+    pub relabel: bool,
+}
+
+impl Conditioned {
+    /// The grid of `config` over the bound objectives, for a learner whose
+    /// observations end with the grid's features.
+    pub(crate) fn new(
+        config: &ConditioningConfig,
+        bound: &BoundObjectives,
+        dims: &LearnerDims,
+        device: Device,
+    ) -> Result<Self, ConfigError> {
+        let grid = PreferenceGrid::new(config, &bound.objectives);
+        if dims.preference_features() != grid.num_features() {
+            return Err(ConfigError::Invalid {
+                field: "learner.conditioning".into(),
+                requirement: format!(
+                    "observations that end with {} preference features (LearnerDims::with_preference_features)",
+                    grid.num_features()
+                ),
+                got: format!("{} features", dims.preference_features()),
+            });
+        }
+        Ok(Self {
+            epsilon: grid.epsilon_table(device),
+            features: grid.feature_table(device),
+            relabel: config.relabel,
+            grid,
+        })
     }
 }
 

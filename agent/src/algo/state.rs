@@ -1,14 +1,10 @@
-//! The learner's state and the machinery its algorithms share: networks and their
-//! targets, Adam optimizers, the duals (eta_k, alpha), the bound objectives, the
-//! trust-region policy fit and the target-network schedule.
+//! The learner's state: networks and their targets, Adam optimizers, the duals
+//! (eta_k, alpha), the bound objectives and the preference grid, built from a config;
+//! the optimizer steps that change them are `update.rs`.
 //!
 //! One `Learner` runs any of the four algorithms; `step` is the one `match` over the
 //! two families: MO-MPO / scalarized MPO (`mompo.rs`, Q critics with targets) and
 //! MO-V-MPO / scalarized V-MPO (`movmpo.rs`, state-value critics).
-//!
-//! The policy fit is the M-step of eqs. 16-20 (MO-MPO) and the step 2 of eq. 25
-//! (MO-V-MPO): weighted maximum likelihood under the decoupled trust region
-//! (`mstep.rs`), one Adam step on the policy and one on the duals.
 //!
 //! Shape legend: N states, M samples (or A actions), D action dims, K objectives,
 //! C learned critics.
@@ -16,16 +12,15 @@
 use super::adam::{Adam, AdamConfig};
 use super::batch::{BatchError, SnippetBatch};
 use super::dual::Duals;
-use super::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
+use super::mstep::KlConstraint;
 use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
-use super::preferences::PreferenceGrid;
+use super::preferences::{Conditioned, PreferenceGrid};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
 use crate::nets::{
-    ActOutput, Acting, ActionKind, MultiCritic, Policy, PolicyOutput, PolicySnapshot,
-    SnapshotError, ValueNet,
+    ActOutput, Acting, ActionKind, MultiCritic, Policy, PolicySnapshot, SnapshotError, ValueNet,
 };
 use crate::random::{Purpose, RandomStream, StreamKey, seeded_init};
 use std::cell::Cell;
@@ -82,21 +77,6 @@ pub(crate) enum Critics {
     V { online: ValueNet },
 }
 
-/// What a step measured before its target update (tensors on the learner's device).
-#[derive(Debug)]
-pub(crate) struct StepMeasures {
-    /// `[C]` critic losses.
-    pub critic_loss: Tensor,
-    /// `[K]` realised KL(q_k || pi_old).
-    pub estep_kl: Tensor,
-    /// `[K]` mean Q_k of the samples (MPO) or `[C]` mean V_c (V-MPO).
-    pub value_mean: Tensor,
-    /// KL parts between target and online policy.
-    pub policy_kl: Tensor,
-    /// Phase timings; `target_update_ms` is filled in by `finish_step`.
-    pub timings: PhaseTimings,
-}
-
 /// What `Learner::build_networks` makes.
 struct Networks {
     policy_vs: nn::VarStore,
@@ -105,19 +85,6 @@ struct Networks {
     target_policy: Policy,
     critic_vs: nn::VarStore,
     critics: Critics,
-}
-
-/// What an ε-conditioned learner adds (`learner.conditioning`).
-#[derive(Debug)]
-pub(crate) struct Conditioned {
-    /// The grid of preferences.
-    pub grid: PreferenceGrid,
-    /// `[G, K]` ε of every grid point.
-    pub epsilon: Tensor,
-    /// `[G, F]` input features of every grid point.
-    pub features: Tensor,
-    /// Train each snippet at a freshly drawn grid point.
-    pub relabel: bool,
 }
 
 /// Networks, targets, optimizers, duals and the step counter of one learner.
@@ -189,29 +156,11 @@ impl Learner {
         let adam = AdamConfig::new(settings.learning_rate, settings.adam_eps);
         let policy_opt = Adam::for_var_store(&policy_vs, adam);
         let critic_opt = Adam::for_var_store(&critic_vs, adam);
-        let conditioned = match &cfg.conditioning {
-            None => None,
-            Some(c) => {
-                let grid = PreferenceGrid::new(c, &bound.objectives);
-                if dims.preference_features() != grid.num_features() {
-                    return Err(ConfigError::Invalid {
-                        field: "learner.conditioning".into(),
-                        requirement: format!(
-                            "observations that end with {} preference features (LearnerDims::with_preference_features)",
-                            grid.num_features()
-                        ),
-                        got: format!("{} features", dims.preference_features()),
-                    }
-                    .into());
-                }
-                Some(Conditioned {
-                    epsilon: grid.epsilon_table(device),
-                    features: grid.feature_table(device),
-                    relabel: c.relabel,
-                    grid,
-                })
-            }
-        };
+        let conditioned = cfg
+            .conditioning
+            .as_ref()
+            .map(|c| Conditioned::new(c, &bound, &dims, device))
+            .transpose()?;
         let grid_points = conditioned.as_ref().map_or(1, |c| c.grid.len());
         let temperatures = vec![settings.init_temperature; grid_points * bound.objectives.len()];
         let alphas: Vec<Vec<f64>> = match dims.action {
@@ -404,108 +353,5 @@ impl Learner {
         } else {
             self.mpo_step(batch)
         }
-    }
-
-    /// Rewards of the critic heads. # Shapes `rewards [T, B, K_env] -> [T, B, C]`.
-    pub(crate) fn critic_rewards(&self, rewards: &Tensor) -> Tensor {
-        rewards.matmul(&self.critic_reward_weights)
-    }
-
-    /// One Adam step on the critics for `loss`, clipped as configured.
-    pub(crate) fn update_critics(&mut self, loss: &Tensor) {
-        self.critic_opt.zero_grad();
-        loss.backward();
-        if let Some(max) = self.settings.grad_clip_norm {
-            self.critic_opt.clip_grad_norm(max);
-        }
-        self.critic_opt.step();
-    }
-
-    /// Policy fit under the decoupled trust region plus `temperature_loss`; one Adam
-    /// step on the policy and one on the duals. Returns the KL parts (KL_mu, KL_Sigma)
-    /// or (KL) between target and online policy before the update; with a
-    /// per-dimension constraint each part is the mean over the D dimensions' KLs (the
-    /// number each beta bounds).
-    /// # Shapes
-    /// Gaussian: `actions [M, N, D]`, `weights [M, N]`; categorical: `actions`
-    /// unused, `weights [A, N]`. The loss is `-mean_N sum_M w log pi`, so weights that
-    /// sum to 1 over the batch must come scaled by N.
-    pub(crate) fn fit_policy(
-        &mut self,
-        online: &PolicyOutput,
-        target: &PolicyOutput,
-        actions: &Tensor,
-        weights: &Tensor,
-        temperature_loss: &Tensor,
-    ) -> Tensor {
-        // [parts, P]
-        let alpha = self.duals.alpha();
-        let s = self.settings;
-        let (policy_loss, alpha_loss, policy_kl) = match (online, target) {
-            (PolicyOutput::Gaussian(online), PolicyOutput::Gaussian(target)) => {
-                let (alpha_mean, alpha_cov) = (alpha.get(0), alpha.get(1));
-                let region = TrustRegion {
-                    alpha_mean: &alpha_mean,
-                    alpha_cov: &alpha_cov,
-                    beta_mean: s.beta_mean,
-                    beta_cov: s.beta_cov,
-                    constraint: s.kl_constraint,
-                };
-                let out = gaussian_mstep(online, target, actions, weights, &region);
-                let parts = [&out.kl_mean, &out.kl_cov].map(|kl| kl.mean(Kind::Float));
-                (out.policy_loss, out.alpha_loss, Tensor::stack(&parts, 0))
-            }
-            (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
-                let alpha = alpha.reshape([-1]).get(0);
-                let out = categorical_mstep(online, target, weights, &alpha, s.beta_categorical);
-                (out.policy_loss, out.alpha_loss, out.kl.unsqueeze(0))
-            }
-            _ => unreachable!("online and target policies have the same kind"),
-        };
-        self.policy_opt.zero_grad();
-        self.duals.zero_grad();
-        (policy_loss + alpha_loss + temperature_loss).backward();
-        if let Some(max) = s.grad_clip_norm {
-            self.policy_opt.clip_grad_norm(max);
-        }
-        self.policy_opt.step();
-        self.duals.step();
-        policy_kl
-    }
-
-    /// Counts the step, copies the targets when due, and reports the step.
-    pub(crate) fn finish_step(
-        &mut self,
-        measured: StepMeasures,
-    ) -> Result<LearnerStats, LearnerError> {
-        let start = Instant::now();
-        self.advance_targets()?;
-        let target_update_ms = ms_since(start, self.device);
-        let (temperature, alpha) = self.duals.values();
-        Ok(LearnerStats {
-            step: self.step,
-            critic_loss: to_vec(&measured.critic_loss),
-            temperature,
-            estep_kl: to_vec(&measured.estep_kl),
-            q_mean: to_vec(&measured.value_mean),
-            alpha,
-            policy_kl: to_vec(&measured.policy_kl),
-            timings: PhaseTimings {
-                target_update_ms,
-                ..measured.timings
-            },
-        })
-    }
-
-    /// Counts the step and copies the target networks when due (C.1).
-    pub(crate) fn advance_targets(&mut self) -> Result<(), LearnerError> {
-        self.step += 1;
-        if self.step.is_multiple_of(self.settings.target_update_period) {
-            self.target_policy_vs.copy(&self.policy_vs)?;
-            if let Critics::Q { target_vs, .. } = &mut self.critics {
-                target_vs.copy(&self.critic_vs)?;
-            }
-        }
-        Ok(())
     }
 }

@@ -7,7 +7,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use super::{ConfigError, check, invalid};
+use super::error::{check, invalid};
+use super::{Algorithm, Architecture, ConfigError, LearnerConfig};
 
 /// The most grid points one conditioned learner keeps duals for.
 pub const MAX_GRID_POINTS: usize = 4096;
@@ -36,6 +37,25 @@ fn default_relabel() -> bool {
 }
 
 impl ConditioningConfig {
+    /// Checks that `learner` can be conditioned (MO-MPO with a feed-forward network)
+    /// and that the grid names its objectives.
+    pub fn validate_for(&self, learner: &LearnerConfig) -> Result<(), ConfigError> {
+        check(
+            learner.algorithm == Algorithm::MoMpo,
+            "learner.conditioning",
+            "used with algorithm.kind = \"mo_mpo\" only",
+            learner.algorithm.short_name(),
+        )?;
+        check(
+            !matches!(learner.network.architecture, Architecture::Mocap { .. }),
+            "learner.conditioning",
+            "used with a feed-forward network (the mocap torso reads its inputs by name)",
+            &learner.network.architecture,
+        )?;
+        let names: Vec<&str> = learner.objectives.iter().map(|o| o.name.as_str()).collect();
+        self.validate(&names)
+    }
+
     /// Checks the grid against the learner's objective names.
     pub fn validate(&self, objective_names: &[&str]) -> Result<(), ConfigError> {
         check(

@@ -7,12 +7,15 @@
 //! MO-MPO and rlax's V-MPO, see `research/acme_mompo.md` §6-7).
 
 mod conditioning;
+mod error;
 mod mpo;
 mod network;
 mod shared;
 mod vmpo;
 
 pub use conditioning::{ConditioningConfig, MAX_GRID_POINTS};
+pub use error::ConfigError;
+use error::{check, finite_pos};
 pub use mpo::MpoConfig;
 pub use network::{Architecture, NetworkConfig};
 pub use shared::{KlConstraint, SharedSettings, TemperatureParameterization};
@@ -176,119 +179,6 @@ impl Default for LearnerConfig {
     }
 }
 
-/// What is wrong with a list of objective names, naming only the kinds that occur.
-fn name_problems(missing: &[String], extra: &[String], duplicate: &[String]) -> String {
-    [
-        ("missing", missing),
-        ("not objectives of this env", extra),
-        ("named more than once", duplicate),
-    ]
-    .iter()
-    .filter(|(_, names)| !names.is_empty())
-    .map(|(what, names)| format!("{what} {names:?}"))
-    .collect::<Vec<_>>()
-    .join("; ")
-}
-
-/// A configuration that cannot be used; the message quotes the received values.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ConfigError {
-    /// One field has an invalid value.
-    #[error("{field} must be {requirement}, got {got}")]
-    Invalid {
-        /// Dotted field path, e.g. `network.min_variance`.
-        field: String,
-        /// What the value must satisfy.
-        requirement: String,
-        /// The received value.
-        got: String,
-    },
-    /// Config names and env objective names do not match one to one.
-    #[error(
-        "{what} must name each of the env's objectives {env:?} once, got {given:?}: {}",
-        name_problems(.missing, .extra, .duplicate)
-    )]
-    ObjectiveNames {
-        /// The config field: `learner.objectives` or `learner.algorithm.weights`.
-        what: String,
-        /// The env's objective names in reward-column order.
-        env: Vec<String>,
-        /// The names the config gave, in its order.
-        given: Vec<String>,
-        /// Env objectives the config does not mention.
-        missing: Vec<String>,
-        /// Config names the env does not have.
-        extra: Vec<String>,
-        /// Names given more than once.
-        duplicate: Vec<String>,
-    },
-    /// A closed-form source on an objective the env does not declare with that closed form.
-    #[error(
-        "{field}: source = \"{given}\" computes objective {name:?} in closed form, which needs the env to declare {wanted} for it; the env declares {declared}{}",
-        undeclared_hint(.declared)
-    )]
-    Undeclared {
-        /// The config field, `learner.objectives.<i>.source`.
-        field: String,
-        /// The objective's name.
-        name: String,
-        /// The source the config gave.
-        given: ObjectiveSource,
-        /// The closed form that source needs.
-        wanted: crate::spec::ClosedForm,
-        /// What the env declares for the objective.
-        declared: crate::spec::ClosedForm,
-    },
-    /// A closed-form objective that the action space or algorithm does not allow.
-    #[error("objective {name:?} has source {kind:?}, which {reason}")]
-    Unsupported {
-        /// Objective name.
-        name: String,
-        /// Its source.
-        kind: ObjectiveSource,
-        /// Why not, e.g. "needs continuous actions".
-        reason: String,
-    },
-}
-
-fn undeclared_hint(declared: &crate::spec::ClosedForm) -> &'static str {
-    match declared {
-        crate::spec::ClosedForm::Undeclared => {
-            ": its server is older than ObjectiveSpec.closed_form, or runs a native front built before it (rebuild it with scripts/setup.sh); upgrade it, or use source = \"learned\""
-        }
-        _ => " (use source = \"learned\")",
-    }
-}
-
-fn invalid(field: &str, requirement: &str, got: impl std::fmt::Debug) -> ConfigError {
-    ConfigError::Invalid {
-        field: field.into(),
-        requirement: requirement.into(),
-        got: format!("{got:?}"),
-    }
-}
-
-fn check(
-    ok: bool,
-    field: &str,
-    requirement: &str,
-    got: impl std::fmt::Debug,
-) -> Result<(), ConfigError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(invalid(field, requirement, got))
-    }
-}
-
-fn finite_pos(x: f64) -> bool {
-    x.is_finite() && x > 0.0
-}
-
-fn non_negative(field: &str, x: f64) -> Result<(), ConfigError> {
-    check(x >= 0.0 && x.is_finite(), field, ">= 0", x)
-}
-
 impl LearnerConfig {
     /// Input features an ε-conditioned learner appends to observations (0 otherwise).
     pub fn preference_features(&self) -> usize {
@@ -340,20 +230,7 @@ impl LearnerConfig {
             }
         }
         if let Some(c) = &self.conditioning {
-            check(
-                self.algorithm == Algorithm::MoMpo,
-                "learner.conditioning",
-                "used with algorithm.kind = \"mo_mpo\" only",
-                self.algorithm.short_name(),
-            )?;
-            check(
-                !matches!(self.network.architecture, Architecture::Mocap { .. }),
-                "learner.conditioning",
-                "used with a feed-forward network (the mocap torso reads its inputs by name)",
-                &self.network.architecture,
-            )?;
-            let names: Vec<&str> = self.objectives.iter().map(|o| o.name.as_str()).collect();
-            c.validate(&names)?;
+            c.validate_for(self)?;
         }
         Ok(())
     }

@@ -3,9 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{
-    ConfigError, KlConstraint, TemperatureParameterization, check, finite_pos, non_negative,
-};
+use super::error::{check, finite_pos, non_negative};
+use super::{ConfigError, KlConstraint, TemperatureParameterization};
 
 /// MPO, policy-evaluation and training hyperparameters (Table 2 "MPO", "training").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

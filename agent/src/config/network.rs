@@ -3,7 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{ConfigError, check};
+use super::ConfigError;
+use super::error::check;
 
 /// Which policy torso to build.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]

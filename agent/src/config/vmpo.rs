@@ -4,9 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{
-    ConfigError, KlConstraint, TemperatureParameterization, check, finite_pos, non_negative,
-};
+use super::error::{check, finite_pos, non_negative};
+use super::{ConfigError, KlConstraint, TemperatureParameterization};
 
 /// On-policy learner and unroll settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
