@@ -18,48 +18,7 @@ use std::time::{Duration, Instant};
 
 use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
-use cli::{agent_cmd, run_dir_in, smoke_dst};
-
-/// learner.jsonl's `learner_step` column.
-fn learner_steps(run: &Path) -> Vec<u64> {
-    learner_rows(run)
-        .iter()
-        .map(|r| r["learner_step"].as_u64().unwrap())
-        .collect()
-}
-
-/// learner.jsonl without its wall-clock columns.
-fn learner_rows(run: &Path) -> Vec<serde_json::Value> {
-    let text = std::fs::read_to_string(run.join("learner.jsonl")).unwrap();
-    text.lines()
-        .map(|l| {
-            let mut row: serde_json::Value = serde_json::from_str(l).unwrap();
-            let map = row.as_object_mut().unwrap();
-            for wall in [
-                "wall_seconds",
-                "step_ms",
-                "env_steps_per_second",
-                "learner_steps_per_second",
-            ] {
-                map.remove(wall);
-            }
-            row
-        })
-        .collect()
-}
-
-/// episodes.csv's rows without the wall-clock column.
-fn episode_rows(run: &Path) -> Vec<String> {
-    let text = std::fs::read_to_string(run.join("episodes.csv")).unwrap();
-    text.lines()
-        .skip(1)
-        .map(|l| l.rsplit_once(',').unwrap().0.to_string())
-        .collect()
-}
-
-fn summary(run: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
-}
+use cli::{agent_cmd, episode_rows, learner_rows, learner_steps, run_dir_in, smoke_dst, summary};
 
 /// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
 fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {

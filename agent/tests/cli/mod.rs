@@ -1,5 +1,6 @@
 //! Running the real `agent` binary in tests: the command, a smoke config writing its
-//! runs under a temporary directory, and finding the run directory it made.
+//! runs under a temporary directory, finding the run directory it made, and reading
+//! its files back.
 #![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
 
 use std::path::{Path, PathBuf};
@@ -34,4 +35,46 @@ pub fn smoke_dst(dir: &Path) -> (PathBuf, PathBuf) {
     let config = dir.join("dst.toml");
     std::fs::write(&config, text).unwrap();
     (runs, config)
+}
+
+/// learner.jsonl's `learner_step` column.
+pub fn learner_steps(run: &Path) -> Vec<u64> {
+    learner_rows(run)
+        .iter()
+        .map(|r| r["learner_step"].as_u64().unwrap())
+        .collect()
+}
+
+/// learner.jsonl without its wall-clock columns.
+pub fn learner_rows(run: &Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(run.join("learner.jsonl")).unwrap();
+    text.lines()
+        .map(|l| {
+            let mut row: serde_json::Value = serde_json::from_str(l).unwrap();
+            let map = row.as_object_mut().unwrap();
+            for wall in [
+                "wall_seconds",
+                "step_ms",
+                "env_steps_per_second",
+                "learner_steps_per_second",
+            ] {
+                map.remove(wall);
+            }
+            row
+        })
+        .collect()
+}
+
+/// episodes.csv's rows without the wall-clock column.
+pub fn episode_rows(run: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(run.join("episodes.csv")).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string())
+        .collect()
+}
+
+/// summary.json.
+pub fn summary(run: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
 }
