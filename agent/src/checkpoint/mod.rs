@@ -11,7 +11,8 @@
 //! Writes are atomic at the directory level: everything goes to `DIR.tmp-<pid>`; then
 //! an existing `DIR` is renamed to `DIR.old-<pid>`, the new one renamed to `DIR`, and
 //! only then is the old one removed. A crash leaves either the old or the new
-//! checkpoint complete under one of those names.
+//! checkpoint complete under one of those names. Every file and directory is synced
+//! before the rename that publishes it, so this holds for a crash of the machine too.
 //!
 //! A run's checkpoint adds its own files to the same directory (`run.rs`: counters,
 //! random-stream positions, logs' lengths) and the replay's segments beside it
@@ -111,11 +112,21 @@ pub struct CheckpointState {
     pub dims: LearnerDims,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
+/// Names `path` in an I/O error.
+pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
     move |source| CheckpointError::Io {
         path: path.to_path_buf(),
         source,
     }
+}
+
+/// Flushes `path` (a file, or a directory's entries) to the disk. A rename is atomic
+/// against a crash of the process, but only a synced file and a synced directory
+/// survive the machine's crash or power loss (a preempted node) in their renamed state.
+pub(crate) fn sync_path(path: &Path) -> Result<(), CheckpointError> {
+    std::fs::File::open(path)
+        .and_then(|f| f.sync_all())
+        .map_err(io(path))
 }
 
 fn prefixed(vs: &nn::VarStore, prefix: &str) -> Vec<(String, Tensor)> {
@@ -268,12 +279,18 @@ impl Learner {
             std::fs::write(&path, file.contents).map_err(io(&path))?;
         }
 
+        for entry in std::fs::read_dir(&tmp).map_err(io(&tmp))? {
+            sync_path(&entry.map_err(io(&tmp))?.path())?;
+        }
+        sync_path(&tmp)?;
+
         let old = parent.join(format!("{name}.old-{}", std::process::id()));
         let had_old = dir.exists();
         if had_old {
             std::fs::rename(dir, &old).map_err(io(dir))?;
         }
         std::fs::rename(&tmp, dir).map_err(io(dir))?;
+        sync_path(parent)?;
         if had_old {
             std::fs::remove_dir_all(&old).map_err(io(&old))?;
         }

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use tch::Tensor;
 
-use super::CheckpointError;
+use super::{CheckpointError, io, sync_path};
 use crate::replay::{Snippet, SnippetLayout};
 
 const TENSOR: &str = "snippets";
@@ -79,13 +79,6 @@ fn parse_name(name: &str) -> Option<SnippetRange> {
     })
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
-    move |source| CheckpointError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Segments in `dir`, by start.
 fn segments(dir: &Path) -> Result<Vec<(SnippetRange, PathBuf)>, CheckpointError> {
     if !dir.exists() {
@@ -124,7 +117,9 @@ pub fn write_segment(
     flatten(snippets, &mut flat);
     let tensor = Tensor::from_slice(&flat).view([snippets.len() as i64, width(layout) as i64]);
     Tensor::write_safetensors(&[(TENSOR, tensor)], &tmp)?;
+    sync_path(&tmp)?;
     std::fs::rename(&tmp, &path).map_err(io(&path))?;
+    sync_path(dir)?;
     Ok(path)
 }
 

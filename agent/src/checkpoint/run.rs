@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::replay::{SnippetRange, prune, read_range, write_segment};
-use super::{CheckpointError, ExtraFile};
+use super::{CheckpointError, ExtraFile, io, sync_path};
 use crate::algo::Learner;
 use crate::replay::{Snippet, SnippetLayout};
 use crate::solve::SolveState;
@@ -132,13 +132,6 @@ struct Latest {
     checkpoint: String,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
-    move |source| CheckpointError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 fn json_error(path: &Path) -> impl FnOnce(serde_json::Error) -> CheckpointError + '_ {
     move |source| CheckpointError::Json {
         path: path.to_path_buf(),
@@ -169,7 +162,11 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
     let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
     f.write_all(bytes).map_err(io(&tmp))?;
     f.sync_all().map_err(io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io(path))
+    std::fs::rename(&tmp, path).map_err(io(path))?;
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => sync_path(dir),
+        _ => Ok(()),
+    }
 }
 
 /// Write a whole-run checkpoint (see module docs); returns its directory.
