@@ -6,7 +6,7 @@ both nodes on 127.0.0.1 in this machine), which lets a test remove a node. Each 
 that the address file lists exactly the servers that are up and that each one steps DST.
 The agent training over the launcher's servers is agent/tests/ray.rs; the sweep test here
 runs the agent binary ($AGENT_BIN, else target/debug/agent, else target/release/agent;
-skipped when none is built).
+skipped when none is built; scripts/test.sh builds it first).
 """
 
 from __future__ import annotations
@@ -368,6 +368,9 @@ def _agent_binary() -> str:
         os.path.join(ROOT, "target", "release", "agent"),
     ):
         if path and os.access(path, os.X_OK):
+            usage = subprocess.run([path, "sweep", "--help"], capture_output=True, text=True, check=False).stdout
+            if "--shard" not in usage:
+                pytest.skip(f"{path} predates `agent sweep --shard`: rebuild it with `cargo build -p agent`")
             return path
     pytest.skip("no agent binary: build it with `cargo build -p agent` (or set AGENT_BIN)")
 
