@@ -1,8 +1,9 @@
 //! Sweeps that survive and spread: shard folders merged by `agent sweep --report` give
 //! the unsharded sweep's points, front and summary; a sweep killed with SIGKILL in the
-//! middle of a job finishes with `--resume`, keeping the finished jobs and continuing
-//! the killed one from its checkpoint; bad `--shard` and `--report` input is refused
-//! naming the flag or file. Runs the real CLI binary against a real env_server.
+//! middle of a job finishes with `--resume` (after its folder was moved), keeping the
+//! finished jobs, continuing the killed one from its checkpoint and starting over a run
+//! without one; bad `--shard` and `--report` input is refused naming the flag, file or
+//! job. Runs the real CLI binary against a real env_server.
 //!
 //! A job resumed from a checkpoint matches the uninterrupted run only up to its actors'
 //! first env step after the resume (env sessions cannot be saved, see resume.rs), so the
@@ -88,7 +89,7 @@ fn summary(dir: &Path) -> serde_json::Value {
     s
 }
 
-/// The one run folder of job `job` in the sweep folder `dir`.
+/// The run folder of job `job` in the sweep folder `dir` (a job has at most one).
 fn job_run(dir: &Path, job: usize) -> Option<PathBuf> {
     run_dir_in(&dir.join("runs").join(format!("{job:03}")))
 }
@@ -160,18 +161,23 @@ async fn shards_merge_into_the_unsharded_front_and_a_killed_sweep_resumes() {
         e.contains("missing job 0 (time=0.01 treasure=0.01, seed 0)"),
         "{e}"
     );
-    let edited = dir("edited");
-    cli_copy(&dir("shard1"), &edited);
-    let text = std::fs::read_to_string(edited.join("sweep.toml")).unwrap();
-    std::fs::write(edited.join("sweep.toml"), text.replace("-25.0", "-30.0")).unwrap();
-    let e = refused(&["sweep", "--report", s(&dir("shard0")), s(&edited)]);
-    assert!(
-        e.contains(&format!(
-            "{}: expected the sweep of",
-            edited.join("sweep.toml").display()
-        )),
-        "{e}"
-    );
+    for (file, from, to) in [
+        ("sweep.toml", "-25.0", "-30.0"),
+        ("base.toml", "batch_size = 64", "batch_size = 32"),
+    ] {
+        let edited = dir(&format!("edited-{file}"));
+        cli_copy(&dir("shard1"), &edited);
+        let text = std::fs::read_to_string(edited.join(file)).unwrap();
+        assert!(text.contains(from), "{file}: {text}");
+        std::fs::write(edited.join(file), text.replace(from, to)).unwrap();
+        let e = refused(&["sweep", "--report", s(&dir("shard0")), s(&edited)]);
+        let expected = format!(
+            "{}: expected the same as {}, got a different one",
+            edited.join(file).display(),
+            dir("shard0").join(file).display()
+        );
+        assert!(e.contains(&expected), "{e}");
+    }
     let unfinished = dir("unfinished");
     cli_copy(&dir("shard1"), &unfinished);
     std::fs::remove_file(job_run(&unfinished, 1).unwrap().join("summary.json")).unwrap();
@@ -219,11 +225,37 @@ async fn shards_merge_into_the_unsharded_front_and_a_killed_sweep_resumes() {
     let (_, at_kill) = latest_checkpoint(&run1).unwrap();
     assert!(at_kill.env_steps < 2500, "{}", at_kill.env_steps);
 
+    // Job 2 as a kill before its first checkpoint leaves it: a run folder with a config
+    // only. (The kill may have come before job 2 started, or just after.)
+    let abandoned = match job_run(&killed, 2) {
+        Some(run) if latest_checkpoint(&run).is_err() => run,
+        Some(run) => panic!("job 2 has a checkpoint already: {}", run.display()),
+        None => {
+            let run = killed.join("runs/002/dst__mompo__0__19700101-000000");
+            std::fs::create_dir_all(&run).unwrap();
+            std::fs::copy(run1.join("config.toml"), run.join("config.toml")).unwrap();
+            run
+        }
+    };
+    // The folder moves (another mount, say): a sweep folder needs only itself.
+    let moved = dir("moved");
+    std::fs::rename(&killed, &moved).unwrap();
+    let (killed, run0, run1, abandoned) = (
+        moved.clone(),
+        moved.join(run0.strip_prefix(&killed).unwrap()),
+        moved.join(run1.strip_prefix(&killed).unwrap()),
+        moved.join(abandoned.strip_prefix(&killed).unwrap()),
+    );
     sweep(address, &["--resume", s(&killed)]);
     // Job 0 is kept as it was, job 1 continues in its folder to the budget, job 2 runs.
     assert_eq!(job_run(&killed, 0).unwrap(), run0);
     assert_eq!(std::fs::read(run0.join("summary.json")).unwrap(), finished);
     assert_eq!(job_run(&killed, 1).unwrap(), run1);
+    assert!(
+        !abandoned.exists(),
+        "job 2's run without a checkpoint starts over"
+    );
+    assert!(job_run(&killed, 2).is_some());
     let env_steps = |run: PathBuf| {
         let text = std::fs::read_to_string(run.join("summary.json")).unwrap();
         serde_json::from_str::<serde_json::Value>(&text).unwrap()["env_steps"].as_u64()

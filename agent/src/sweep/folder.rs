@@ -96,9 +96,12 @@ pub struct SweepFolder {
 /// Where a job stands in its folder.
 #[derive(Debug, Clone)]
 pub enum JobState {
-    /// Not started (or started and killed before its first checkpoint, its run folder
-    /// removed): train from the start.
+    /// Not started: train from the start.
     Fresh,
+    /// A run folder with neither a checkpoint nor a final summary: killed before its
+    /// first checkpoint (or still before it, when another process runs the job now).
+    /// Nothing in it can be continued; a resume removes it and starts over.
+    Abandoned(PathBuf),
     /// Stopped with a checkpoint: continue the run in this folder.
     Checkpointed(PathBuf),
     /// Finished: the run folder and its final summary.
@@ -256,8 +259,7 @@ impl SweepFolder {
         self.dir.join("runs").join(format!("{:03}", job.index))
     }
 
-    /// Where `job` stands; a run folder without a checkpoint or final summary (killed
-    /// before its first checkpoint) is removed, as nothing in it can be continued.
+    /// Where `job` stands (reads only: a report may run beside the sweep).
     pub fn job_state(&self, job: &Job) -> Result<JobState, SweepError> {
         let job_dir = self.job_dir(job);
         let runs: Vec<PathBuf> = match std::fs::read_dir(&job_dir) {
@@ -287,9 +289,7 @@ impl SweepFolder {
         if latest_checkpoint(&run).is_ok() {
             return Ok(JobState::Checkpointed(run));
         }
-        tracing::warn!(run = %run.display(), "no checkpoint to continue from: starting the job over");
-        std::fs::remove_dir_all(&run).map_err(io(&run))?;
-        Ok(JobState::Fresh)
+        Ok(JobState::Abandoned(run))
     }
 
     /// The sweep and base config with what may differ between two machines running

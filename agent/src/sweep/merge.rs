@@ -66,12 +66,20 @@ pub(super) fn write_report(
     wall_seconds: f64,
 ) -> Result<FrontSummary, SweepError> {
     let first = &folders[0];
-    let same = first.comparable();
+    let (sweep, base) = first.comparable();
     for f in &folders[1..] {
-        if f.comparable() != same {
+        let (other_sweep, other_base) = f.comparable();
+        let differs = if other_sweep != sweep {
+            Some(super::folder::SWEEP_FILE)
+        } else if other_base != base {
+            Some(super::folder::BASE_FILE)
+        } else {
+            None
+        };
+        if let Some(file) = differs {
             return Err(SweepError::Mismatch {
-                path: f.dir.join(super::folder::SWEEP_FILE),
-                first: first.dir.clone(),
+                path: f.dir.join(file),
+                first: first.dir.join(file),
             });
         }
     }
@@ -103,6 +111,7 @@ pub(super) fn write_report(
     let mut objectives: Option<Vec<String>> = None;
     let mut points = Vec::with_capacity(jobs.len());
     for (folder, job) in jobs.values() {
+        // Fresh, abandoned or checkpointed: no final summary to report.
         let JobState::Finished(run_dir, result) = folder.job_state(job)? else {
             return Err(SweepError::Unfinished {
                 job: job.label(),
@@ -131,7 +140,6 @@ pub(super) fn write_report(
             on_front: false,
         });
     }
-    let sweep = &first.sweep;
     let report = FrontReport {
         name: &sweep.name,
         reference_point: &sweep.reference_point,

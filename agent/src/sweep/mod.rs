@@ -103,12 +103,12 @@ pub enum SweepError {
     },
     /// `--report` of folders from different sweeps.
     #[error(
-        "{path}: expected the sweep of {first} (the same sweep file and base config), got a different one"
+        "{path}: expected the same as {first}, got a different one (the folders are not shards of one sweep)"
     )]
     Mismatch {
-        /// The differing folder's sweep file.
+        /// The differing folder's sweep file or base config.
         path: PathBuf,
-        /// The first folder given.
+        /// The same file of the first folder given.
         first: PathBuf,
     },
     /// `--report` of folders that share a job.
@@ -211,6 +211,21 @@ pub async fn run(
                 }
                 JobState::Checkpointed(run) => Some(run),
                 JobState::Fresh => None,
+                JobState::Abandoned(run) => {
+                    say(
+                        &bar,
+                        format!(
+                            "  {}: {} has no checkpoint, starting over",
+                            job.label(),
+                            run.display()
+                        ),
+                    );
+                    std::fs::remove_dir_all(&run).map_err(|source| SweepError::Io {
+                        path: run.clone(),
+                        source,
+                    })?;
+                    None
+                }
             };
             let mut cfg = apply(&folder.base, &job.setting, job.seed)?;
             // One directory per job, so that each job's run is found by its index.
@@ -220,7 +235,10 @@ pub async fn run(
             }
             if let Some(run) = &resume {
                 // As `agent train --resume`: the run continues as it was configured.
-                let stored = TrainConfig::load(&run.join("config.toml"))?;
+                let mut stored = TrainConfig::load(&run.join("config.toml"))?;
+                // The job's folder is where the run is found now: the sweep folder may
+                // have been moved, or be named by another path (relative, a mount).
+                stored.run.runs_dir = cfg.run.runs_dir.clone();
                 cfg.check_resume_changes(&stored)?;
                 say(
                     &bar,
