@@ -404,6 +404,8 @@ def test_sweep_job_runs_one_shard_per_completion_index_and_the_merge_waits_for_a
     assert env_value(c, "SWEEP_ROOT") == env_value(r, "SWEEP_ROOT")
     # Retries resume the shard: each is a new pod (the API's rule for these fields).
     assert pod["restartPolicy"] == "Never" and spec["backoffLimitPerIndex"] >= 1
+    # ... and never beside the pod it replaces, which may still be writing the folder.
+    assert spec["podReplacementPolicy"] == "Failed"
     assert pod["terminationGracePeriodSeconds"] >= 60
     # The scripts and the sweep from their ConfigMaps.
     for workload, cont, script in ((job, c, SHARD_SCRIPT), (report, r, REPORT_SCRIPT)):
