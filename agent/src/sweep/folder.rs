@@ -318,3 +318,85 @@ fn read_result(run: &Path) -> Result<Option<RunResult>, SweepError> {
             message: e.to_string(),
         })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A two-setting, two-seed sweep on the smoke DST config, its runs under `dir`.
+    fn tiny(dir: &Path) -> (SweepConfig, TrainConfig) {
+        let smoke = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
+        std::fs::copy(smoke, dir.join("dst.toml")).unwrap();
+        std::fs::write(
+            dir.join("sweep.toml"),
+            r#"
+name = "t"
+base = "dst.toml"
+seeds = [0, 1]
+set = ["learner.mpo.batch_size=32"]
+reference_point = { time = -25.0, treasure = 0.0 }
+[grid]
+kind = "epsilon"
+product = { time = [0.01], treasure = [0.1, 1.0] }
+"#,
+        )
+        .unwrap();
+        SweepConfig::load(&dir.join("sweep.toml")).unwrap()
+    }
+
+    #[test]
+    fn a_shard_folder_reopens_alone_and_refuses_what_does_not_fit() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (sweep, base) = tiny(tmp.path());
+        let dir = tmp.path().join("shard");
+        let shard = Some(Shard { index: 1, count: 2 });
+        let made = SweepFolder::create(&sweep, &base, shard, Some(&dir)).unwrap();
+        // Jobs 1 and 3 of (0.1, 0), (0.1, 1), (1.0, 0), (1.0, 1): seed 1 of each setting.
+        let picked: Vec<(usize, u64)> = made.jobs.iter().map(|j| (j.index, j.seed)).collect();
+        assert_eq!(picked, [(1, 1), (3, 1)]);
+        let opened = SweepFolder::open(&dir).unwrap();
+        assert_eq!(opened.jobs, made.jobs);
+        assert_eq!(opened.shard, shard);
+        // The sweep's `set` lives on in base.toml, not as overrides to apply again.
+        assert!(opened.sweep.set.is_empty());
+        assert_eq!(opened.base.learner.mpo.batch_size, 32);
+        assert_eq!(opened.comparable(), made.comparable());
+
+        let e = SweepFolder::create(&sweep, &base, shard, Some(&dir)).unwrap_err();
+        assert!(matches!(e, SweepError::Exists { .. }), "{e}");
+        let e = SweepFolder::create(&sweep, &base, Some(Shard { index: 0, count: 5 }), None);
+        assert_eq!(
+            e.unwrap_err().to_string(),
+            "--shard: expected N at most 4 (the sweep has 4 jobs), got N = 5"
+        );
+
+        // Job states: none yet, a run folder with only its config, two run folders.
+        let job = &opened.jobs[0];
+        assert!(matches!(opened.job_state(job).unwrap(), JobState::Fresh));
+        let run = opened.job_dir(job).join("dst__mompo__1__20261125-000000");
+        std::fs::create_dir_all(&run).unwrap();
+        assert!(matches!(opened.job_state(job).unwrap(), JobState::Abandoned(r) if r == run));
+        assert!(run.exists(), "looking does not remove");
+        std::fs::create_dir_all(opened.job_dir(job).join("other")).unwrap();
+        let e = opened.job_state(job).unwrap_err().to_string();
+        assert!(e.contains("expected one run folder"), "{e}");
+
+        // A job list that is not the one the sweep file makes for the shard.
+        let spec = dir.join(SPEC_FILE);
+        let text = std::fs::read_to_string(&spec).unwrap();
+        std::fs::write(&spec, text.replace("\"index\": 3", "\"index\": 2")).unwrap();
+        let e = SweepFolder::open(&dir).unwrap_err().to_string();
+        assert!(
+            e.starts_with(&format!("{}: jobs: expected the 2 jobs", spec.display()))
+                && e.contains("for shard 1/2"),
+            "{e}"
+        );
+        std::fs::write(
+            &spec,
+            text.replace("\"format_version\": 1", "\"format_version\": 9"),
+        )
+        .unwrap();
+        let e = SweepFolder::open(&dir).unwrap_err().to_string();
+        assert!(e.contains("format_version: expected 1, got 9"), "{e}");
+    }
+}
