@@ -16,6 +16,9 @@ cargo fmt --all --check
 .venv/bin/ruff check .
 cargo clippy --locked --workspace --all-targets -- -D warnings
 
+echo "==> the agent binary (test_ray.py's sweep test runs it)"
+cargo build --locked -p agent --bin agent
+
 echo "==> Python tests (env_server)"
 (cd env_server && ../.venv/bin/python -m pytest -q tests)
 

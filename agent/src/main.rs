@@ -12,7 +12,7 @@ use agent::env::pool::ServerPool;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::eval::evaluate_checkpoint_at;
 use agent::run_config::TrainConfig;
-use agent::sweep::{SweepConfig, sweep};
+use agent::sweep::{SweepConfig, SweepFolder};
 use agent::train::{TrainOptions, train};
 use agent::video::{VideoOptions, VideoPlan};
 use anyhow::{Context, Result, bail};
@@ -63,10 +63,32 @@ enum Command {
         video: VideoArgs,
     },
     /// Train every setting of an ε (or weight) grid, evaluate, and write the Pareto front.
+    ///
+    /// `--resume DIR` finishes a stopped sweep (finished runs are kept, the others continue
+    /// from their checkpoints); `--shard I/N` runs the jobs j with j mod N = I; `--report
+    /// DIR...` merges shard folders into the front of the whole sweep.
     Sweep {
         /// Sweep file, e.g. configs/sweeps/dst.toml.
-        #[arg(long)]
-        config: PathBuf,
+        #[arg(long, required_unless_present_any = ["resume", "report"], conflicts_with_all = ["resume", "report"])]
+        config: Option<PathBuf>,
+        /// Finish the sweep (or shard) in this folder: keep its finished runs, continue the
+        /// others from their checkpoints, then write its front (reads the folder's
+        /// sweep.toml, base.toml and sweep.json).
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["report", "shard", "overrides", "total_env_steps", "dir"])]
+        resume: Option<PathBuf>,
+        /// Run one slice of the sweep: the jobs j (settings x seeds, in order) with
+        /// j mod N = I, in a folder of its own; `--report` merges the N folders.
+        #[arg(long, value_name = "I/N", conflicts_with = "report")]
+        shard: Option<agent::sweep::Shard>,
+        /// Write the front of these sweep folders (a sweep, or every shard of one, each
+        /// job once) from their finished runs; no training, no server.
+        #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["servers", "overrides", "total_env_steps", "device", "video"])]
+        report: Vec<PathBuf>,
+        /// The sweep's folder (default: a new runs/sweep__<name>__<time>/); with --report,
+        /// where the merged front goes (default: the folder itself when one is given, else
+        /// a new sweep__<name>__<time>/ beside the first).
+        #[arg(long, value_name = "DIR")]
+        dir: Option<PathBuf>,
         /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT,
         /// dns://NAMESERVER/NAME:PORT or file:PATH; default: the base config's, or a
         /// local server.
@@ -323,6 +345,10 @@ async fn run() -> Result<()> {
         }
         Command::Sweep {
             config,
+            resume,
+            shard,
+            report,
+            dir,
             servers,
             connection,
             total_env_steps,
@@ -331,24 +357,41 @@ async fn run() -> Result<()> {
             video,
             video_args,
         } => {
-            let (mut sweep_cfg, mut base) = SweepConfig::load_with(&config, &overrides)
-                .with_context(|| format!("loading {}", config.display()))?;
-            if total_env_steps.is_some() {
-                sweep_cfg.total_env_steps = total_env_steps;
+            if !report.is_empty() {
+                let s = agent::sweep::report(&report, dir.as_deref())?;
+                cli::report::sweep(&s);
+                return Ok(());
             }
+            let mut folder = match (&resume, config) {
+                (Some(dir), _) => {
+                    SweepFolder::open(dir).with_context(|| format!("--resume {}", dir.display()))?
+                }
+                (None, Some(config)) => {
+                    let (mut sweep_cfg, base) = SweepConfig::load_with(&config, &overrides)
+                        .with_context(|| format!("loading {}", config.display()))?;
+                    if total_env_steps.is_some() {
+                        sweep_cfg.total_env_steps = total_env_steps;
+                    }
+                    base.validate()?;
+                    SweepFolder::create(&sweep_cfg, &base, shard, dir.as_deref())?
+                }
+                (None, None) => unreachable!("clap requires --config, --resume or --report"),
+            };
+            // What may differ between invocations of one sweep (see SweepFolder::comparable).
             if let Some(d) = device {
-                base.learner.device = d;
+                folder.base.learner.device = d;
             }
             let configured = if servers.is_empty() {
-                base.env.servers.clone()
+                folder.base.env.servers.clone()
             } else {
                 servers
             };
-            base.env.connection = connection.apply(base.env.connection);
-            base.validate()?;
-            let (addresses, local) = server_addresses(&configured, &base.env.connection).await?;
+            folder.base.env.connection = connection.apply(folder.base.env.connection);
+            folder.base.validate()?;
+            let (addresses, local) =
+                server_addresses(&configured, &folder.base.env.connection).await?;
             let options = video.then(|| video_args.options());
-            let result = sweep(&sweep_cfg, &base, &addresses, true, options.as_ref()).await;
+            let result = agent::sweep::run(&folder, &addresses, true, options.as_ref()).await;
             if let Some(local) = local {
                 local.stop().await?;
             }

@@ -4,7 +4,9 @@ The launcher runs as a real subprocess, against a local Ray it starts itself or 
 two-node cluster this module makes with Ray's own test utility (`ray.cluster_utils.Cluster`,
 both nodes on 127.0.0.1 in this machine), which lets a test remove a node. Each test checks
 that the address file lists exactly the servers that are up and that each one steps DST.
-The agent training over the launcher's servers is agent/tests/ray.rs.
+The agent training over the launcher's servers is agent/tests/ray.rs; the sweep test here
+runs the agent binary ($AGENT_BIN, else target/debug/agent, else target/release/agent;
+skipped when none is built; scripts/test.sh builds it first).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import os
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
+import json  # noqa: E402
 import re  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
@@ -29,7 +32,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from env_server.client import RemoteEnv  # noqa: E402
+from env_server.ray import sweep  # noqa: E402
 from env_server.ray.launcher import parse, write_address_file  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 UP = re.compile(r"server (\d+) (?:up|back) at (\S+) \(pid (\d+), node (\w+)\)")
 
@@ -136,6 +142,36 @@ def pid_alive(pid: int) -> bool:
         (["--num-servers", "2", "--server-args", "--port 5000"], "other than --host, --port and --list"),
         (["--num-servers", "2", "--server-args", "'unclosed"], "--server-args: expected a shell-quoted string"),
         (["--num-servers", "2", "--"], "expected a COMMAND after '--'"),
+        (
+            ["--num-servers", "1", "--sweep-shards", "2", "--", "agent", "sweep", "--config", "s.toml"],
+            "--sweep-dir DIR",
+        ),
+        (
+            ["--num-servers", "1", "--sweep-dir", "d", "--", "agent", "sweep"],
+            "--sweep-dir: expected with --sweep-shards",
+        ),
+        (["--num-servers", "1", "--sweep-shards", "0", "--sweep-dir", "d"], "--sweep-shards: expected >= 1, got 0"),
+        (
+            ["--num-servers", "1", "--sweep-shards", "2", "--sweep-dir", "d", "--", "agent", "train"],
+            "agent sweep --config",
+        ),
+        (
+            [
+                "--num-servers",
+                "1",
+                "--sweep-shards",
+                "2",
+                "--sweep-dir",
+                "d",
+                "--",
+                "agent",
+                "sweep",
+                "--config=s",
+                "--dir",
+                "x",
+            ],
+            "expected no --dir in COMMAND",
+        ),
     ],
 )
 def test_bad_flags_are_refused_naming_the_flag(argv, message, capsys):
@@ -150,6 +186,26 @@ def test_command_is_everything_after_the_first_separator():
     assert opts.server_args == ["--max-sessions", "8"]
     assert opts.command == ["agent", "train", "--", "x"]
     assert parse(["--num-servers", "1"]).command == []
+
+
+def test_a_shard_starts_with_its_slice_and_resumes_with_the_folder_alone():
+    command = ["agent", "sweep", "--config", "s.toml", "--set", "seed=1", "--total-env-steps=9", "--device", "cpu"]
+    assert sweep.start_argv(command, 1, 3, "/d/shard-1-of-3") == [
+        *command,
+        "--shard",
+        "1/3",
+        "--dir",
+        "/d/shard-1-of-3",
+    ]
+    # A resume reads the sweep from its folder: the flags that made it go, the rest stay.
+    assert sweep.resume_argv(command, "/d/x") == ["agent", "sweep", "--resume", "/d/x", "--device", "cpu"]
+    assert sweep.report_argv(command, ["/a", "/b"], "/d/front") == [
+        "agent", "sweep", "--report", "/a", "/b", "--dir", "/d/front",
+    ]  # fmt: skip
+    assert sweep.absolute(["bin/agent", "sweep", "--config", "s.toml"])[::3] == [
+        os.path.abspath("bin/agent"),
+        os.path.abspath("s.toml"),
+    ]
 
 
 def test_the_address_file_is_replaced_whole(tmp_path):
@@ -303,3 +359,85 @@ def test_servers_come_back_after_a_killed_server_a_killed_actor_and_a_removed_no
     finally:
         launcher.stop()
         ray.shutdown()
+
+
+def _agent_binary() -> str:
+    for path in (
+        os.environ.get("AGENT_BIN", ""),
+        os.path.join(ROOT, "target", "debug", "agent"),
+        os.path.join(ROOT, "target", "release", "agent"),
+    ):
+        if path and os.access(path, os.X_OK):
+            usage = subprocess.run([path, "sweep", "--help"], capture_output=True, text=True, check=False).stdout
+            if "--shard" not in usage:
+                pytest.skip(f"{path} predates `agent sweep --shard`: rebuild it with `cargo build -p agent`")
+            return path
+    pytest.skip("no agent binary: build it with `cargo build -p agent` (or set AGENT_BIN)")
+
+
+def test_a_sweep_runs_as_ray_tasks_and_a_shard_on_a_lost_node_resumes_elsewhere(cluster, tmp_path):
+    """Two shards of a four-run DST sweep as Ray tasks; the worker node running one of them is
+    removed once that shard has a checkpoint: Ray retries the task on the head node, where it
+    resumes the shard's folder, and the merged front has every run."""
+    agent = _agent_binary()
+    worker = cluster.add_node(num_cpus=3)
+    cluster.wait_for_nodes()
+    base = open(os.path.join(ROOT, "configs", "smoke", "dst.toml")).read()
+    (tmp_path / "dst.toml").write_text(
+        base.replace("[run]\n", f"[run]\nruns_dir = {str(tmp_path / 'runs')!r}\n").replace(
+            "checkpoint_period = 100", "checkpoint_period = 50"
+        )
+    )
+    (tmp_path / "sweep.toml").write_text(
+        textwrap.dedent(
+            """
+            name = "ray"
+            base = "dst.toml"
+            seeds = [0, 1]
+            total_env_steps = 3000
+            reference_point = { time = -25.0, treasure = 0.0 }
+            [grid]
+            kind = "epsilon"
+            product = { time = [0.01], treasure = [0.01, 1.0] }
+            """
+        )
+    )
+    root = tmp_path / "sweep"
+    started = time.monotonic()
+    # A head with 3 CPUs holds both servers (0.5 each) and both shards (1 each) once the worker is gone.
+    launcher = Launcher(
+        "--num-servers", "2", "--cpus-per-server", "0.5", "--address", cluster.address,
+        "--address-file", str(tmp_path / "servers.txt"), "--server-args", "--log-level WARNING",
+        "--sweep-shards", "2", "--sweep-dir", str(root), "--",
+        agent, "sweep", "--config", str(tmp_path / "sweep.toml"),
+    )  # fmt: skip
+    try:
+
+        def on_worker_with_checkpoint() -> int | None:
+            for i in range(2):
+                folder = sweep.shard_dir(str(root), i, 2)
+                tries = sweep.read_attempts(folder)
+                if tries and tries[0]["node"] == worker.node_id and os.path.isdir(folder):
+                    for job in os.listdir(os.path.join(folder, "runs")) if os.path.isdir(folder + "/runs") else []:
+                        for run in os.listdir(os.path.join(folder, "runs", job)):
+                            if os.path.exists(os.path.join(folder, "runs", job, run, "checkpoints", "latest.json")):
+                                return i
+            return None
+
+        wait_for("a shard on the worker node with a checkpoint", lambda: on_worker_with_checkpoint() is not None, 120)
+        lost = on_worker_with_checkpoint()
+        print(f"removing the worker node {time.monotonic() - started:.1f} s in (shard {lost} on it)", file=sys.stderr)
+        cluster.remove_node(worker)
+        code = launcher.wait(240)
+    finally:
+        launcher.stop()
+    assert code == 0, launcher.output()
+    print(f"sweep over Ray done {time.monotonic() - started:.1f} s after the launcher started", file=sys.stderr)
+    tries = sweep.read_attempts(sweep.shard_dir(str(root), lost, 2))
+    assert len(tries) >= 2 and tries[0]["node"] == worker.node_id, tries
+    assert tries[-1]["node"] != worker.node_id and tries[-1]["resume"], tries
+    assert f"shard {lost}/2 finished" in launcher.output(), launcher.output()
+    points = (root / "front" / "points.csv").read_text().splitlines()
+    assert len(points) == 1 + 4, points
+    summary = json.loads((root / "front" / "summary.json").read_text())
+    assert [p["seed"] for p in summary["points"]] == [0, 1, 0, 1]

@@ -114,7 +114,9 @@ pub struct FrontSummary {
     pub true_hypervolume: Option<f64>,
     /// Inverted generational distance of the found returns to the true front, when given.
     pub igd: Option<f64>,
-    /// Wall time of the whole sweep.
+    /// Wall time of what measured the front: the sweep invocation that wrote it (a
+    /// resume counts from its own start; `agent sweep --report`, the longest of the
+    /// merged folders' own), or an ε-conditioned run's evaluation over its grid.
     pub wall_seconds: f64,
 }
 

@@ -6,20 +6,35 @@
 //! `runs/sweep__<name>__<UTC time>/`: `points.csv`, `front.csv`, `summary.json`
 //! (hypervolume with the stated reference point, EUM), `front.{png,svg}` and, when
 //! configured, the Fig. 5-style plot of one objective's return against an ε ratio.
+//!
+//! A sweep survives and spreads: its folder keeps what it was started with
+//! (`folder.rs`), so `--resume` keeps the finished jobs and continues the others from
+//! their checkpoints; `--shard I/N` runs the jobs j with j mod N = I in a folder of its
+//! own (`shard.rs`); and the report is always made from the folders on disk
+//! (`merge.rs`), which is how `--report` merges shards into the unsharded sweep's front.
 
 use std::collections::BTreeMap;
-use std::time::{Instant, SystemTime};
+use std::path::PathBuf;
+use std::time::Instant;
 
 mod config;
+mod folder;
+mod merge;
+mod shard;
 
 pub use crate::front::{FrontPoint, FrontReport, FrontSummary, seeds};
 pub use config::{Grid, GridKind, RatioPlot, SweepConfig, Values, apply};
+pub use folder::{
+    BASE_FILE, Job, JobState, RunResult, SPEC_FILE, SWEEP_FILE, SweepFolder, all_jobs,
+};
+pub use merge::report;
+pub use shard::{Shard, ShardError};
 
 use futures::StreamExt;
 
+use crate::config::ConfigError;
 use crate::metrics::format_vector;
 use crate::run_config::TrainConfig;
-use crate::run_name;
 use crate::train::{TrainError, TrainOptions, TrainSummary, train};
 use crate::video::{VideoOptions, VideoPlan};
 
@@ -32,30 +47,139 @@ pub fn setting_label(s: &BTreeMap<String, f64>) -> String {
         .join(" ")
 }
 
-/// Run the whole sweep against `addresses`; `progress` draws a bar over the runs;
-/// `video` records each run's final evaluation (`runs/<i>/<run>/videos/final.mp4`).
+/// Errors of a sweep, its resume and its report.
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    /// A run of the sweep failed or was stopped.
+    #[error(transparent)]
+    Train(#[from] TrainError),
+    /// The sweep file or base config is invalid.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// Measuring or writing the front failed.
+    #[error(transparent)]
+    Front(#[from] crate::front::FrontError),
+    /// A sweep file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// File involved.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// `--resume` or `--report` was given a folder that is no sweep's.
+    #[error(
+        "{dir}: expected a sweep folder (agent sweep writes {} there), found none",
+        folder::SPEC_FILE
+    )]
+    NotASweep {
+        /// The folder given.
+        dir: PathBuf,
+    },
+    /// `--dir` names a folder that holds a sweep already.
+    #[error(
+        "--dir {dir}: expected a folder without a sweep, got one holding {}; continue it with --resume {dir}",
+        folder::SPEC_FILE
+    )]
+    Exists {
+        /// The folder given.
+        dir: PathBuf,
+    },
+    /// `--shard I/N` with more shards than jobs (a shard without a job has no front).
+    #[error("--shard: expected N at most {jobs} (the sweep has {jobs} jobs), got N = {count}")]
+    TooManyShards {
+        /// N.
+        count: usize,
+        /// Jobs in the sweep.
+        jobs: usize,
+    },
+    /// A sweep folder's file does not hold what it should.
+    #[error("{path}: {message}")]
+    Content {
+        /// File involved.
+        path: PathBuf,
+        /// What was expected and what it holds.
+        message: String,
+    },
+    /// `--report` of folders from different sweeps.
+    #[error(
+        "{path}: expected the same as {first}, got a different one (the folders are not shards of one sweep)"
+    )]
+    Mismatch {
+        /// The differing folder's sweep file or base config.
+        path: PathBuf,
+        /// The same file of the first folder given.
+        first: PathBuf,
+    },
+    /// `--report` of folders that share a job.
+    #[error(
+        "{job} is in both {first} and {second}: expected each job in one folder (the same shard given twice?)"
+    )]
+    Overlap {
+        /// The job.
+        job: String,
+        /// One folder holding it.
+        first: PathBuf,
+        /// The other.
+        second: PathBuf,
+    },
+    /// `--report` of shard folders that leave jobs out.
+    #[error("expected every job of the sweep in the folders {folders:?}, missing {}: a shard's folder left out?", jobs.join(", "))]
+    Missing {
+        /// The jobs no folder holds.
+        jobs: Vec<String>,
+        /// The folders given.
+        folders: Vec<PathBuf>,
+    },
+    /// `--report` of a folder whose job has no final summary.
+    #[error(
+        "{job} has not finished: expected a run with a final summary.json in {dir}, got none (continue its sweep with --resume)"
+    )]
+    Unfinished {
+        /// The job.
+        job: String,
+        /// Its job folder.
+        dir: PathBuf,
+    },
+    /// A job folder with more than one run folder.
+    #[error("{dir}: expected one run folder, found {found:?}")]
+    RunFolders {
+        /// The job folder.
+        dir: PathBuf,
+        /// The run folders in it.
+        found: Vec<PathBuf>,
+    },
+    /// `--report` without a folder.
+    #[error("--report: expected at least one sweep folder, got none")]
+    NoFolders,
+}
+
+/// Run the whole sweep against `addresses` in a new folder; `progress` draws a bar
+/// over the runs; `video` records each run's final evaluation
+/// (`runs/<i>/<run>/videos/final.mp4`).
 pub async fn sweep(
     sweep: &SweepConfig,
     base: &TrainConfig,
     addresses: &[String],
     progress: bool,
     video: Option<&VideoOptions>,
-) -> Result<FrontSummary, TrainError> {
+) -> Result<FrontSummary, SweepError> {
+    let folder = SweepFolder::create(sweep, base, None, None)?;
+    run(&folder, addresses, progress, video).await
+}
+
+/// Run `folder`'s jobs (a new sweep or shard, or one to resume) and report its front:
+/// finished jobs are kept, a job with a checkpoint continues from it, the others
+/// train from the start.
+pub async fn run(
+    folder: &SweepFolder,
+    addresses: &[String],
+    progress: bool,
+    video: Option<&VideoOptions>,
+) -> Result<FrontSummary, SweepError> {
     let started = Instant::now();
-    let stem = format!("sweep__{}", sweep.name);
-    let dir = run_name::create_run_dir(&base.run.runs_dir, &stem, SystemTime::now()).map_err(
-        |source| TrainError::Io {
-            path: base.run.runs_dir.clone(),
-            source,
-        },
-    )?;
-    let jobs: Vec<(BTreeMap<String, f64>, u64)> = sweep
-        .settings()
-        .into_iter()
-        .flat_map(|s| sweep.seeds.iter().map(move |&seed| (s.clone(), seed)))
-        .collect();
     let bar = if progress {
-        indicatif::ProgressBar::new(jobs.len() as u64)
+        indicatif::ProgressBar::new(folder.jobs.len() as u64)
     } else {
         indicatif::ProgressBar::hidden()
     };
@@ -65,20 +189,67 @@ pub async fn sweep(
         )
         .expect("valid template"),
     );
-    let runs = futures::stream::iter(jobs.into_iter().enumerate().map(|(i, (setting, seed))| {
-        let (bar, dir) = (bar.clone(), dir.clone());
+    // A bar drawn to a non-terminal is hidden and would swallow println.
+    let say = |bar: &indicatif::ProgressBar, line: String| {
+        if bar.is_hidden() {
+            tracing::info!("{}", line.trim())
+        } else {
+            bar.println(line)
+        }
+    };
+    let runs = futures::stream::iter(folder.jobs.iter().map(|job| {
+        let bar = bar.clone();
         async move {
-            let mut cfg = apply(base, &setting, seed)?;
+            let resume = match folder.job_state(job)? {
+                JobState::Finished(run, _) => {
+                    say(
+                        &bar,
+                        format!("  {}: finished in {}, kept", job.label(), run.display()),
+                    );
+                    bar.inc(1);
+                    return Ok(());
+                }
+                JobState::Checkpointed(run) => Some(run),
+                JobState::Fresh => None,
+                JobState::Abandoned(run) => {
+                    say(
+                        &bar,
+                        format!(
+                            "  {}: {} has no checkpoint, starting over",
+                            job.label(),
+                            run.display()
+                        ),
+                    );
+                    std::fs::remove_dir_all(&run).map_err(|source| SweepError::Io {
+                        path: run.clone(),
+                        source,
+                    })?;
+                    None
+                }
+            };
+            let mut cfg = apply(&folder.base, &job.setting, job.seed)?;
             // One directory per job, so that each job's run is found by its index.
-            cfg.run.runs_dir = dir.join("runs").join(format!("{i:03}"));
-            if let Some(n) = sweep.total_env_steps {
+            cfg.run.runs_dir = folder.job_dir(job);
+            if let Some(n) = folder.sweep.total_env_steps {
                 cfg.run.total_env_steps = n;
+            }
+            if let Some(run) = &resume {
+                // As `agent train --resume`: the run continues as it was configured.
+                let mut stored = TrainConfig::load(&run.join("config.toml"))?;
+                // The job's folder is where the run is found now: the sweep folder may
+                // have been moved, or be named by another path (relative, a mount).
+                stored.run.runs_dir = cfg.run.runs_dir.clone();
+                cfg.check_resume_changes(&stored)?;
+                say(
+                    &bar,
+                    format!("  {}: resuming {}", job.label(), run.display()),
+                );
             }
             let s: TrainSummary = train(
                 cfg,
                 addresses,
                 TrainOptions {
-                    resume: None,
+                    resume,
                     progress: false,
                     video: video.map(|options| VideoPlan {
                         every: None,
@@ -89,54 +260,36 @@ pub async fn sweep(
             .await?;
             if let Some(signal) = &s.interrupted {
                 // The signal reached every run: end the sweep instead of starting more.
-                return Err(TrainError::Stopped(format!(
-                    "interrupted ({signal}); run {} has its checkpoint and report",
-                    s.run_dir.display()
-                )));
+                return Err(SweepError::Train(TrainError::Stopped(format!(
+                    "interrupted ({signal}); run {} has its checkpoint and report, \
+                     and agent sweep --resume {} continues the sweep",
+                    s.run_dir.display(),
+                    folder.dir.display()
+                ))));
             }
-            let line = format!(
-                "  {:<40} seed {seed}: eval return {}",
-                setting_label(&setting),
-                format_vector(&s.eval_return)
+            say(
+                &bar,
+                format!(
+                    "  {:<40} seed {}: eval return {}",
+                    setting_label(&job.setting),
+                    job.seed,
+                    format_vector(&s.eval_return)
+                ),
             );
-            // A bar drawn to a non-terminal is hidden and would swallow println.
-            if bar.is_hidden() {
-                tracing::info!("{}", line.trim())
-            } else {
-                bar.println(line)
-            }
             bar.inc(1);
-            Ok::<_, TrainError>((i, setting, seed, s))
+            Ok::<_, SweepError>(())
         }
     }))
-    .buffer_unordered(sweep.parallel.max(1))
+    .buffer_unordered(folder.sweep.parallel.max(1))
     .collect::<Vec<_>>()
     .await;
-    let mut finished = runs.into_iter().collect::<Result<Vec<_>, _>>()?;
-    finished.sort_by_key(|(i, ..)| *i);
-    let objectives = finished
-        .first()
-        .map(|(.., s)| s.objectives.clone())
-        .unwrap_or_default();
-    let points: Vec<FrontPoint> = finished
-        .into_iter()
-        .map(|(_, setting, seed, s)| FrontPoint {
-            setting,
-            seed,
-            eval_return: s.eval_return,
-            eval_discounted_return: s.eval_discounted_return,
-            run_dir: s.run_dir,
-            on_front: false,
-        })
-        .collect();
+    runs.into_iter().collect::<Result<Vec<()>, _>>()?;
     bar.finish_and_clear();
-    let report = FrontReport {
-        name: &sweep.name,
-        reference_point: &sweep.reference_point,
-        true_front: &sweep.true_front,
-        ratio_plot: sweep.ratio_plot.as_ref(),
-    };
-    Ok(report.write(dir, objectives, points, started.elapsed().as_secs_f64())?)
+    merge::write_report(
+        std::slice::from_ref(folder),
+        folder.dir.clone(),
+        started.elapsed().as_secs_f64(),
+    )
 }
 
 #[cfg(test)]

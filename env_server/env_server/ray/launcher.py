@@ -7,7 +7,9 @@ with `--server file:PATH` appended, so that `-- agent train --config c.toml` tra
 and re-reads the file when a server becomes unreachable. COMMAND's output is streamed, its
 exit code is the launcher's, and the servers stop when it exits. COMMAND also finds the
 file in $ENV_SERVER_ADDRESS_FILE. Without COMMAND the launcher keeps the servers and the
-file up until Ctrl-C or SIGTERM, for an agent started elsewhere.
+file up until Ctrl-C or SIGTERM, for an agent started elsewhere. With --sweep-shards S,
+COMMAND is `agent sweep --config FILE ...`, run as S Ray tasks of one shard each (retried,
+and resumed, when a node is lost), then merged into the sweep's front (see sweep.py).
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ import tempfile
 import time
 from dataclasses import dataclass
 from typing import Any
+
+from env_server.ray import sweep
 
 NAMESPACE = "env_server"
 """The Ray namespace of the server actors (named NAME-0 .. NAME-(N-1), --name)."""
@@ -86,6 +90,32 @@ def _parser() -> argparse.ArgumentParser:
         metavar="S",
         help="seconds to wait for all N servers to listen before giving up (default 300)",
     )
+    p.add_argument(
+        "--sweep-shards",
+        type=int,
+        metavar="S",
+        help="run COMMAND (`agent sweep --config FILE ...`) as S shards, one Ray task each (retried on node loss, "
+        "resuming the shard), then merge them into the front in --sweep-dir/front",
+    )
+    p.add_argument(
+        "--sweep-dir",
+        metavar="DIR",
+        help="with --sweep-shards: where the shard folders (shard-I-of-S) and the merged front go; every node "
+        "must reach it at this path, as it must the address file (--address-file) and COMMAND's files",
+    )
+    p.add_argument(
+        "--cpus-per-shard",
+        type=float,
+        default=1.0,
+        help="Ray CPUs each shard task reserves (default 1; a local Ray gets S times this many more)",
+    )
+    p.add_argument(
+        "--shard-retries",
+        type=int,
+        default=3,
+        metavar="R",
+        help="times Ray retries a shard whose node or worker was lost (default 3)",
+    )
     return p
 
 
@@ -120,6 +150,18 @@ def parse(argv: list[str]) -> Options:
         )
     if "--" in argv and not command:
         parser.error("expected a COMMAND after '--', got nothing")
+    if args.sweep_shards is not None:
+        if args.sweep_shards < 1:
+            parser.error(f"--sweep-shards: expected >= 1, got {args.sweep_shards}")
+        if args.sweep_dir is None:
+            parser.error("--sweep-shards: expected --sweep-dir DIR beside it (where the shards go), got none")
+        if args.shard_retries < 0:
+            parser.error(f"--shard-retries: expected >= 0, got {args.shard_retries}")
+        why = sweep.check_command(command)
+        if why:
+            parser.error(f"--sweep-shards: {why}")
+    elif args.sweep_dir is not None:
+        parser.error(f"--sweep-dir: expected with --sweep-shards, got it alone ({args.sweep_dir!r})")
     return Options(args, server_args, command)
 
 
@@ -310,8 +352,9 @@ def _start_ray(opts: Options) -> Any:
     }
     if address == "local":
         os.environ.pop("RAY_ADDRESS", None)  # ray.init prefers $RAY_ADDRESS over address="local"
+        shards = (opts.args.sweep_shards or 0) * opts.args.cpus_per_shard
         kwargs.update(
-            num_cpus=max(1, int(-(-opts.args.num_servers * opts.args.cpus_per_server // 1))),
+            num_cpus=max(1, int(-(-(opts.args.num_servers * opts.args.cpus_per_server + shards) // 1))),
             object_store_memory=128 * 1024 * 1024,
         )
     ray.init(address=address, **kwargs)
@@ -371,6 +414,8 @@ def run(opts: Options, signals: _Signals) -> int:
             while signals.received is None:
                 fleet.poll(0.5)
             return 0
+        if opts.args.sweep_shards is not None:
+            return _run_sweep(ray, fleet, opts, signals)
         command = [*opts.command, "--server", f"file:{path}"]
         try:
             child = subprocess.Popen(
@@ -396,6 +441,59 @@ def run(opts: Options, signals: _Signals) -> int:
                     os.remove(p) if p == path else os.rmdir(p)
                 except OSError:
                     pass
+
+
+def _run_sweep(ray: Any, fleet: Fleet, opts: Options, signals: _Signals) -> int:
+    """COMMAND's shards as Ray tasks against the fleet's servers, then their merge; the exit code."""
+    count = opts.args.sweep_shards
+    root = os.path.abspath(opts.args.sweep_dir)
+    os.makedirs(root, exist_ok=True)
+    command = sweep.absolute(opts.command)
+    # The tasks run in Ray's workers, whose environment is the node's, not this launcher's.
+    env = {k: os.environ[k] for k in ("RUST_LOG", "RUST_BACKTRACE") if k in os.environ}
+    task = ray.remote(sweep.run_shard).options(
+        num_cpus=opts.args.cpus_per_shard,
+        max_retries=opts.args.shard_retries,
+        retry_exceptions=False,  # an agent that fails is reported, not rerun: only a lost node is retried
+        scheduling_strategy="SPREAD",
+    )
+    started = time.monotonic()
+    pending = {task.remote(command, i, count, root, fleet.path, env): i for i in range(count)}
+    failed: list[int] = []
+    try:
+        while pending:
+            if signals.received is not None:
+                return 128 + signals.received
+            fleet.poll(0.5)
+            ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0)
+            for ref in ready:
+                index = pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayError as exc:
+                    raise LaunchError(
+                        f"shard {index}/{count}: expected it to finish within {opts.args.shard_retries} retries "
+                        f"(--shard-retries), got {type(exc).__name__}: {exc}"
+                    ) from None
+                tries = result["attempts"]
+                how = f"{len(tries)} attempts, resumed {sum(t['resume'] for t in tries)}x" if len(tries) > 1 else ""
+                nodes = ", ".join(t["node"][:12] for t in tries)
+                if result["code"] == 0:
+                    _log(
+                        f"shard {index}/{count} finished after {time.monotonic() - started:.1f} s on node {nodes} {how}"
+                    )
+                else:
+                    _log(f"shard {index}/{count} failed with exit code {result['code']} (node {nodes})")
+                    failed.append(result["code"])
+        if failed:
+            return failed[0]
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)  # the agent dies with its worker (PR_SET_PDEATHSIG)
+    folders = [sweep.shard_dir(root, i, count) for i in range(count)]
+    report = sweep.report_argv(command, folders, os.path.join(root, "front"))
+    _log(f"{count} shards finished in {time.monotonic() - started:.1f} s; merging into {report[-1]}")
+    return subprocess.run(report, check=False).returncode
 
 
 def main(argv: list[str] | None = None) -> int:
