@@ -64,7 +64,10 @@ fn train(server: &str, runs: &Path, seed: u64) -> Command {
     cmd.args(["--server", server, "--total-env-steps", BUDGET])
         .args(["--set", &format!("seed={seed}")])
         .args(["--set", &format!("run.runs_dir={runs:?}")])
-        .args(["--set", &format!("run.checkpoint_period={CHECKPOINT_PERIOD}")]);
+        .args([
+            "--set",
+            &format!("run.checkpoint_period={CHECKPOINT_PERIOD}"),
+        ]);
     cmd
 }
 
@@ -188,7 +191,10 @@ async fn a_pendulum_run_killed_five_times_learns_as_an_uninterrupted_one() {
 
     // Learning goes on across each resume.
     for &at in &resumed_at {
-        assert!(at >= WINDOW && at + WINDOW <= returns.len(), "{resumed_at:?}");
+        assert!(
+            at >= WINDOW && at + WINDOW <= returns.len(),
+            "{resumed_at:?}"
+        );
         let before = &returns[at - WINDOW..at];
         let after = median(&returns[at..at + WINDOW]);
         let low = before.iter().copied().fold(f64::MAX, f64::min);
