@@ -7,16 +7,15 @@ use std::path::PathBuf;
 
 use agent::config::DeviceChoice;
 use agent::env::connection::ConnectionConfig;
-use agent::env::grpc::EnvClient;
-use agent::env::pool::ServerPool;
-use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::eval::evaluate_checkpoint_at;
 use agent::run_config::TrainConfig;
 use agent::sweep::{SweepConfig, SweepFolder};
 use agent::train::{TrainOptions, train};
-use agent::video::{VideoOptions, VideoPlan};
-use anyhow::{Context, Result, bail};
-use clap::{Args, Parser, Subcommand};
+use agent::video::VideoPlan;
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use cli::args::{ConnectionArgs, VideoArgs, server_address};
+use cli::servers::{connect, server_addresses};
 
 /// Multi-objective MPO agents for env_server environments.
 #[derive(Debug, Parser)]
@@ -190,80 +189,6 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
-}
-
-/// How to reach servers that take TLS or a bearer token (env_server's --tls-cert,
-/// --tls-client-ca, --auth-token-file); each flag replaces the config's
-/// `env.connection` field of the same meaning.
-#[derive(Debug, clap::Args)]
-struct ConnectionArgs {
-    /// PEM certificate of the CA that signed the servers' certificates; servers are
-    /// then reached over TLS (https).
-    #[arg(long, value_name = "PEM")]
-    tls_ca: Option<PathBuf>,
-    /// PEM client certificate, for servers that require mutual TLS (--tls-client-ca).
-    #[arg(long, value_name = "PEM", requires = "tls_client_key")]
-    tls_client_cert: Option<PathBuf>,
-    /// PEM private key of --tls-client-cert.
-    #[arg(long, value_name = "PEM", requires = "tls_client_cert")]
-    tls_client_key: Option<PathBuf>,
-    /// File holding the bearer token, one line (`token` or `name:token`).
-    #[arg(long, value_name = "FILE")]
-    token_file: Option<PathBuf>,
-}
-
-impl ConnectionArgs {
-    /// `base` with every flag that was given in place of its field.
-    fn apply(self, mut base: ConnectionConfig) -> ConnectionConfig {
-        let pairs = [
-            (self.tls_ca, &mut base.tls_ca_file),
-            (self.tls_client_cert, &mut base.tls_client_cert_file),
-            (self.tls_client_key, &mut base.tls_client_key_file),
-            (self.token_file, &mut base.token_file),
-        ];
-        for (flag, field) in pairs {
-            if flag.is_some() {
-                *field = flag;
-            }
-        }
-        base
-    }
-}
-
-/// How videos are rendered (with `--video` or `--video-every`).
-#[derive(Debug, Clone, Args)]
-struct VideoArgs {
-    /// Width of each instance's frame in pixels (0 = the server's default, 320).
-    #[arg(long, default_value_t = 0)]
-    video_width: u32,
-    /// Height of each instance's frame in pixels (0 = the server's default, 240).
-    #[arg(long, default_value_t = 0)]
-    video_height: u32,
-    /// Camera the env names ("" = the task's default view).
-    #[arg(long, default_value = "")]
-    video_camera: String,
-    /// Frames per second (default: the task's real time, or 30 when it does not say).
-    #[arg(long)]
-    video_fps: Option<f64>,
-}
-
-impl VideoArgs {
-    fn options(&self) -> VideoOptions {
-        VideoOptions {
-            width: self.video_width,
-            height: self.video_height,
-            camera: self.video_camera.clone(),
-            fps: self.video_fps,
-        }
-    }
-}
-
-/// `--server`'s value, checked when the command line is read, so that a bad one is
-/// reported against the flag (clap names it) rather than the config field it replaces.
-fn server_address(text: &str) -> Result<String, String> {
-    agent::env::discovery::ServerSource::parse(text)
-        .map(|_| text.to_string())
-        .map_err(|e| e.to_string())
 }
 
 fn main() -> Result<()> {
@@ -462,57 +387,4 @@ async fn run() -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Connect to `server`, or start a local one when none is given.
-async fn connect(
-    server: Option<String>,
-    connection: ConnectionArgs,
-) -> Result<(EnvClient, Option<LocalServer>)> {
-    let connection = connection.apply(ConnectionConfig::default());
-    connection.validate()?;
-    match server {
-        Some(address) => {
-            // Any address form, a dns: name or a file: list included: its first server.
-            let servers = ServerPool::connect(&[address], &connection).await?;
-            Ok((servers.first().client, None))
-        }
-        None => {
-            refuse_credentials_for_local(&connection)?;
-            let local = LocalServer::start(&ServerOptions::default())
-                .await
-                .context("starting a local env_server")?;
-            tracing::info!(address = local.address(), "started local env_server");
-            Ok((EnvClient::connect(local.address()).await?, Some(local)))
-        }
-    }
-}
-
-/// A local server is plain loopback: TLS or token settings without a server are a
-/// mistake (probably a forgotten --server), not something to drop silently.
-fn refuse_credentials_for_local(connection: &ConnectionConfig) -> Result<()> {
-    if !connection.is_empty() {
-        bail!(
-            "--tls-ca/--tls-client-cert/--token-file (env.connection): expected with --server or \
-             env.servers, got no server (the local env_server a command starts is plain loopback \
-             and takes no token): {connection:?}"
-        );
-    }
-    Ok(())
-}
-
-/// The configured servers, or a local one started for this command.
-async fn server_addresses(
-    configured: &[String],
-    connection: &ConnectionConfig,
-) -> Result<(Vec<String>, Option<LocalServer>)> {
-    if !configured.is_empty() {
-        return Ok((configured.to_vec(), None));
-    }
-    refuse_credentials_for_local(connection)?;
-    let local = LocalServer::start(&ServerOptions::default())
-        .await
-        .context("starting a local env_server")?;
-    tracing::info!(address = local.address(), "started local env_server");
-    Ok((vec![local.address().to_string()], Some(local)))
 }
