@@ -10,6 +10,7 @@
 //! discrete one is the most likely index (`[B]` int64; the env adds its space's
 //! `start`, which the checkpoint does not store).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use tch::{Kind, Tensor};
@@ -56,13 +57,21 @@ pub enum ActError {
 /// The deterministic env actions of the checkpoint at `checkpoint` (a run directory or
 /// one `checkpoints/step_<n>`) for the observations in `observations`, written to
 /// `out` (`.npy` or `.json`); returns the actions as JSON text when `out` is `None`.
+/// An ε-conditioned policy acts at `epsilon` (default: its grid's middle point); its
+/// observations are the env's, without the preference features, which it appends.
 pub fn act_on_file(
     checkpoint: &Path,
     observations: &Path,
     out: Option<&Path>,
+    epsilon: Option<&BTreeMap<String, f64>>,
 ) -> Result<Option<String>, ActError> {
-    let CheckpointPolicy { dims, policy, .. } = load_checkpoint_policy(checkpoint)?;
-    let obs = read_observations(observations, dims.obs_dim)?;
+    let mut loaded = load_checkpoint_policy(checkpoint)?;
+    if let Some(epsilon) = epsilon {
+        loaded = loaded.with_epsilon(epsilon)?;
+    }
+    let CheckpointPolicy { dims, policy, .. } = loaded;
+    let env_obs_dim = dims.obs_dim - dims.preference_features() as i64;
+    let obs = read_observations(observations, env_obs_dim)?;
     let actions = env_actions(&policy, &dims, &obs);
     match out {
         Some(path) => {
@@ -135,7 +144,7 @@ pub fn read_observations(path: &Path, obs_dim: i64) -> Result<Tensor, ActError> 
     if size.len() != 2 || size[1] != obs_dim {
         return Err(bad(
             "observations",
-            format!("shape [B, {obs_dim}] (the checkpoint's dims.obs_dim) or [{obs_dim}]"),
+            format!("shape [B, {obs_dim}] (the env's flattened observation) or [{obs_dim}]"),
             format!("{size:?}"),
         ));
     }
@@ -262,7 +271,7 @@ mod tests {
             ),
             (
                 "[[1, 2, 3]]",
-                "observations: expected shape [B, 2] (the checkpoint's dims.obs_dim) or [2], got [1, 3]",
+                "observations: expected shape [B, 2] (the env's flattened observation) or [2], got [1, 3]",
             ),
             (
                 "{\"obs\": 1}",

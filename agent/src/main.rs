@@ -156,6 +156,10 @@ enum Command {
         /// Write the actions here (.npy or .json); default: print them as JSON.
         #[arg(long, value_name = "FILE")]
         out: Option<PathBuf>,
+        /// An ε-conditioned policy's preference, as for `eval --epsilon`; the
+        /// observations are then the env's, without the preference features.
+        #[arg(long, value_name = "NAME=EPS,...", value_parser = agent::algo::preferences::parse_setting)]
+        epsilon: Option<std::collections::BTreeMap<String, f64>>,
     },
     /// List the envs a server offers, with their objectives.
     Envs {
@@ -356,9 +360,14 @@ async fn run() -> Result<()> {
             checkpoint,
             observations,
             out,
+            epsilon,
         } => {
-            if let Some(json) = agent::act::act_on_file(&checkpoint, &observations, out.as_deref())?
-            {
+            if let Some(json) = agent::act::act_on_file(
+                &checkpoint,
+                &observations,
+                out.as_deref(),
+                epsilon.as_ref(),
+            )? {
                 println!("{json}");
             }
         }

@@ -1,6 +1,7 @@
 //! ε-conditioned MO-MPO end to end over a real server (issue 26): one run of
 //! `configs/smoke/dst-conditioned.toml` learns three ε_treasure / ε_time ratios, ends
-//! by writing its front, and `agent eval --epsilon` asks its policy for any preference.
+//! by writing its front, and `agent eval --epsilon` and `agent act --epsilon` ask its
+//! policy for any preference.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -101,6 +102,31 @@ async fn one_run_traces_a_front_over_its_preference_grid() {
         err.contains("--epsilon") && err.contains("\"time\" is not a conditioned objective"),
         "{err}"
     );
+
+    // `agent act --epsilon` takes the env's observations (every cell of the grid) and
+    // appends the preference itself: the ratios 0.25 and 25, which reach different
+    // treasures, act differently somewhere; observations that already carry a
+    // feature are refused with the env's size.
+    let cells: Vec<[f32; 2]> = (0..11)
+        .flat_map(|r| (0..10).map(move |c| [r as f32, c as f32]))
+        .collect();
+    let observations = runs.path().join("cells.json");
+    std::fs::write(&observations, serde_json::to_string(&cells).unwrap()).unwrap();
+    let act = |v: f64| {
+        agent::act::act_on_file(&summary.run_dir, &observations, None, Some(&at(v)))
+            .unwrap()
+            .unwrap()
+    };
+    let (near, far) = (act(0.005), act(0.5));
+    let actions: Vec<i64> = serde_json::from_str(&near).unwrap();
+    assert_eq!(actions.len(), cells.len());
+    assert_ne!(near, far, "the same actions at ratios 0.25 and 25");
+    let with_feature = runs.path().join("with_feature.json");
+    std::fs::write(&with_feature, "[[0, 0, 0.5]]").unwrap();
+    let err = agent::act::act_on_file(&summary.run_dir, &with_feature, None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("expected shape [B, 2]"), "{err}");
     server.stop().await.unwrap();
 }
 
