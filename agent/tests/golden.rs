@@ -1,7 +1,8 @@
 //! Golden-value tests: the Rust E-step, M-step (summed and per-dimension KL
 //! constraints), Retrace, Gaussian log-likelihood and MO-V-MPO's top-k weights,
 //! temperature loss, T-step targets and policy fit against values computed
-//! independently in PyTorch by `golden/make_golden.py`; and three whole MO-MPO learner
+//! independently in PyTorch by `golden/make_golden.py` (the MO-V-MPO parts through
+//! `golden/make_golden_vmpo_parts.py`); and three whole MO-MPO learner
 //! steps (`Learner::step` with given parameters and sampling noise) against
 //! `golden/make_golden_step.py` (float64; the JSON files are committed, so no Python
 //! is needed here), and three ε-conditioned ones against

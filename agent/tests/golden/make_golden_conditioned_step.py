@@ -16,7 +16,6 @@ Written with loops over grid points, objectives and states.
 """
 
 import copy
-import json
 import math
 
 import make_golden_step as base
@@ -99,7 +98,7 @@ def main():
             }
         )
     payload = {"config": config(), "dims": DIMS, "initial_parameters": initial, "steps": steps}
-    (base.OUT / "mpo_step_conditioned.json").write_text(json.dumps(payload, indent=1) + "\n")
+    base.write("mpo_step_conditioned", payload)
     print(
         "snippet features per step (-1: ε_energy 0.02, +1: 0.2):",
         [[int(x) for x in s["batch"]["observations"]["data"][ENV_OBS :: ENV_OBS + 1][: base.B]] for s in steps],

@@ -63,6 +63,11 @@ def softplus_inv(v):
     return math.log(math.expm1(v - 1e-8))
 
 
+def write(name, payload):
+    """agent/tests/golden/<name>.json, in the layout every golden file has."""
+    (OUT / f"{name}.json").write_text(json.dumps(payload, indent=1) + "\n")
+
+
 def config(kl_constraint):
     return {
         "algorithm": {"kind": "mo_mpo"},
@@ -373,7 +378,7 @@ def main():
                 }
             )
         payload = {"config": config(kl_constraint), "dims": DIMS, "initial_parameters": initial, "steps": steps}
-        (OUT / f"mpo_step_{kl_constraint}.json").write_text(json.dumps(payload, indent=1) + "\n")
+        write(f"mpo_step_{kl_constraint}", payload)
 
 
 if __name__ == "__main__":

@@ -34,13 +34,12 @@ per-head layers (nets/value.rs), bootstrapping at a truncation and before paddin
 """
 
 import copy
-import json
 import math
 import pathlib
 
 import torch
 import torch.nn.functional as F
-from make_golden_step import f32, softplus_inv, t
+from make_golden_step import f32, softplus_inv, t, write
 
 torch.set_default_dtype(torch.float64)
 OUT = pathlib.Path(__file__).resolve().parent
@@ -378,7 +377,7 @@ def main():
                 }
             )
         payload = {"config": config(case), "dims": dims(case), "initial_parameters": initial, "steps": steps}
-        (OUT / f"vmpo_step_{case['name']}.json").write_text(json.dumps(payload, indent=1) + "\n")
+        write(f"vmpo_step_{case['name']}", payload)
 
 
 if __name__ == "__main__":
