@@ -18,7 +18,9 @@ use std::time::{Duration, Instant};
 
 use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
-use cli::{agent_cmd, episode_rows, learner_rows, learner_steps, run_dir_in, smoke_dst, summary};
+use cli::{
+    agent_cmd, copy_dir, episode_rows, learner_rows, learner_steps, run_dir_in, smoke_dst, summary,
+};
 
 /// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
 fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {
@@ -170,19 +172,6 @@ async fn kill_9_then_resume_reaches_the_budget_with_every_row_once() {
     }
     assert_ne!(resumed, whole, "new env sessions after the resume");
     server.stop().await.unwrap();
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).unwrap();
-        }
-    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use cli::{agent_cmd, run_dir_in, smoke_dst};
+use cli::{agent_cmd, copy_dir, run_dir_in, smoke_dst};
 
 /// Three settings, one seed, 2500 env steps each (about 2 s a job on 2 cores), a
 /// checkpoint every 50 learner steps so that a kill finds one.
@@ -166,7 +166,7 @@ async fn shards_merge_into_the_unsharded_front_and_a_killed_sweep_resumes() {
         ("base.toml", "batch_size = 64", "batch_size = 32"),
     ] {
         let edited = dir(&format!("edited-{file}"));
-        cli_copy(&dir("shard1"), &edited);
+        copy_dir(&dir("shard1"), &edited);
         let text = std::fs::read_to_string(edited.join(file)).unwrap();
         assert!(text.contains(from), "{file}: {text}");
         std::fs::write(edited.join(file), text.replace(from, to)).unwrap();
@@ -179,7 +179,7 @@ async fn shards_merge_into_the_unsharded_front_and_a_killed_sweep_resumes() {
         assert!(e.contains(&expected), "{e}");
     }
     let unfinished = dir("unfinished");
-    cli_copy(&dir("shard1"), &unfinished);
+    copy_dir(&dir("shard1"), &unfinished);
     std::fs::remove_file(job_run(&unfinished, 1).unwrap().join("summary.json")).unwrap();
     let e = refused(&["sweep", "--report", s(&dir("shard0")), s(&unfinished)]);
     assert!(
@@ -275,20 +275,6 @@ async fn shards_merge_into_the_unsharded_front_and_a_killed_sweep_resumes() {
         assert_eq!(resumed[i], whole[i], "row {i}");
     }
     server.stop().await.unwrap();
-}
-
-/// Copy the folder `from` to `to`.
-fn cli_copy(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            cli_copy(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).unwrap();
-        }
-    }
 }
 
 #[test]
