@@ -17,7 +17,7 @@ use super::activation::elu_;
 use super::heads::HeadStack;
 use super::mlp::{Dense, Norm};
 use crate::config::NetworkConfig;
-use tch::{Kind, Tensor, nn};
+use tch::{Device, Kind, Tensor, nn};
 
 /// Rows per chunk of an untracked `forward_samples` (about 9 MB per activation at width
 /// 500). On the development machine 4608 rows made the humanoid-size step about 10%
@@ -150,13 +150,14 @@ impl MultiCritic {
             self.heads_forward(&h.reshape([rows * n, -1]))
                 .reshape([rows, n, self.num_heads])
         };
-        if per_state.requires_grad() || m * n <= CHUNK_ROWS {
+        if per_state.requires_grad() || m * n <= CHUNK_ROWS || per_state.device() != Device::Cpu {
             return eval(actions);
         }
-        // Untracked (the target critic on every sample): a few samples at a time, so
-        // that each layer's activations stay in cache between the GEMM and the
+        // Untracked (the target critic on every sample) on a CPU: a few samples at a
+        // time, so that each layer's activations stay in cache between the GEMM and the
         // element-wise passes that follow it, instead of streaming the whole
-        // [M N, h] tensor through memory once per pass.
+        // [M N, h] tensor through memory once per pass. A GPU has no such cache to
+        // keep; there chunks would only add kernel launches (20 chunks at humanoid size).
         let per_chunk = (CHUNK_ROWS / n).max(1);
         let chunks: Vec<Tensor> = (0..m)
             .step_by(per_chunk as usize)
