@@ -217,11 +217,14 @@ def test_the_probe_command_answers_for_a_tls_server(tmp_path: pathlib.Path) -> N
 
 
 # ---------------------------------------------------------------------- agent
-AGENT_MAIN = (ROOT / "agent" / "src" / "main.rs").read_text(encoding="utf-8")
+# The agent's command line: main.rs, and the flags several subcommands share (cli/args.rs).
+AGENT_MAIN = "\n".join(
+    (ROOT / "agent" / "src" / path).read_text(encoding="utf-8") for path in ("main.rs", "cli/args.rs")
+)
 
 
 def agent_flag_exists(flag: str) -> bool:
-    """Whether agent/src/main.rs declares `--flag` (clap derive: `long = "flag"`, or a
+    """Whether the agent's command line declares `--flag` (clap derive: `long = "flag"`, or a
     `#[arg(long...)]` field named like it)."""
     name = flag.removeprefix("--")
     field = name.replace("-", "_")
