@@ -1,13 +1,14 @@
 """The Python side of agent/tests/python_policy.rs: a run's policy through
 env_server.trained_policy, on the observations the agent acted on and on RemoteEnv.
 
-    python_policy.py RUN OBSERVATIONS ACTIONS [ADDRESS ENV_ID EPISODES SEED NUM_ENVS]
+    python_policy.py [--epsilon NAME=EPS,...] RUN OBSERVATIONS ACTIONS [ADDRESS ENV_ID EPISODES SEED NUM_ENVS]
 
 OBSERVATIONS and ACTIONS are the files given to and written by `agent act` (.npy or
 .json). Prints JSON: `max_abs_diff`, the largest difference between the agent's actions
 and `policy.act(obs)` (deterministic), and `episodes`, what `trained_policy.evaluate`
 reports for EPISODES episodes on NUM_ENVS instances of ENV_ID seeded from SEED (none
-without an ADDRESS).
+without an ADDRESS). `--epsilon` loads an ε-conditioned policy at that preference, as
+`agent act --epsilon` and `agent eval --epsilon` take it.
 """
 
 from __future__ import annotations
@@ -26,9 +27,14 @@ def _read(path: pathlib.Path) -> np.ndarray:
 
 
 def main() -> None:
-    run, observations, actions, *server = sys.argv[1:]
+    args = sys.argv[1:]
+    epsilon = None
+    if args[0] == "--epsilon":
+        epsilon = {name: float(v) for name, v in (item.split("=") for item in args[1].split(","))}
+        args = args[2:]
+    run, observations, actions, *server = args
     run_dir = pathlib.Path(run)
-    policy = load_policy(run_dir)
+    policy = load_policy(run_dir, epsilon)
     ours = policy.act(_read(pathlib.Path(observations))).numpy()
     theirs = _read(pathlib.Path(actions))
     if ours.shape != theirs.shape:

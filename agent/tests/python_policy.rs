@@ -5,17 +5,19 @@
 //! through RemoteEnv with `agent eval`'s seeds and instances, which must give the
 //! episode returns `agent eval` reports. On DST (categorical) and pendulum (Gaussian,
 //! tanh mean, Box bounds [-2, 2]); and A.3's mocap torso (encoder and latent) on an
-//! untrained learner's checkpoint, actions only.
+//! untrained learner's checkpoint, actions only; and an ε-conditioned pendulum policy
+//! at a preference off its training grid.
 
 mod common;
 
 use std::path::Path;
 use std::process::Command;
 
+use agent::algo::preferences::parse_setting;
 use agent::checkpoint::run::{RunProgress, write_run_checkpoint};
 use agent::env::connection::ConnectionConfig;
 use agent::env::server_process::{LocalServer, ServerOptions, default_python};
-use agent::eval::evaluate_checkpoint;
+use agent::eval::evaluate_checkpoint_at;
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train};
 use tch::Tensor;
@@ -33,12 +35,14 @@ fn observations(n: usize, dim: usize, scale: f64) -> Vec<Vec<f32>> {
 }
 
 /// Train `cfg` on `server`, have the agent and Python act on `obs` (written as
-/// `obs.<ext>`), and evaluate through both; asserts what the module doc says.
+/// `obs.<ext>`), and evaluate through both; asserts what the module doc says. An
+/// ε-conditioned run acts and is evaluated at `epsilon` (`NAME=EPS,...`).
 async fn agent_and_python_agree(
     cfg: TrainConfig,
     server: &LocalServer,
     obs: &[Vec<f32>],
     ext: &str,
+    epsilon: Option<&str>,
 ) {
     let address = server.address().to_string();
     let (cfg_seed, env_id, num_envs) = (cfg.seed, cfg.env.id.clone(), cfg.env.num_envs);
@@ -58,15 +62,17 @@ async fn agent_and_python_agree(
     } else {
         std::fs::write(&obs_path, serde_json::to_string(obs).unwrap()).unwrap();
     }
-    agent_act(&run, &obs_path, &actions_path);
+    agent_act(&run, &obs_path, &actions_path, epsilon);
 
     let episodes = 4;
     // agent/src/eval.rs: seeds disjoint from training's, at most env.num_envs instances.
     let seed = cfg_seed + 1_000_000;
     let num_envs = episodes.clamp(1, num_envs);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
+    let epsilon_args: Vec<&str> = epsilon.map_or(vec![], |e| vec!["--epsilon", e]);
     let out = Command::new(default_python())
         .arg(script)
+        .args(&epsilon_args)
         .arg(&run)
         .arg(&obs_path)
         .arg(&actions_path)
@@ -86,8 +92,10 @@ async fn agent_and_python_agree(
         "Python's actions differ from the agent's by {diff}"
     );
 
-    let report = evaluate_checkpoint(
+    let setting = epsilon.map(|e| parse_setting(e).unwrap());
+    let report = evaluate_checkpoint_at(
         &run,
+        setting.as_ref(),
         &[address],
         &ConnectionConfig::default(),
         episodes,
@@ -121,7 +129,30 @@ async fn a_dst_policy_in_pytorch_acts_and_returns_as_the_agent() {
     let mut cfg = TrainConfig::load_with(&path, &["run.total_env_steps=2000".into()]).unwrap();
     cfg.run.runs_dir = runs.path().join("runs");
     // DST observes the submarine's (row, column) in a 11 x 10 grid.
-    agent_and_python_agree(cfg, &server, &observations(64, 2, 10.0), "json").await;
+    agent_and_python_agree(cfg, &server, &observations(64, 2, 10.0), "json", None).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum-conditioned.toml");
+    let mut cfg = TrainConfig::load_with(
+        &path,
+        &[
+            "run.total_env_steps=1600".into(),
+            "run.min_replay_transitions=400".into(),
+            "run.eval_episodes=1".into(),
+        ],
+    )
+    .unwrap();
+    cfg.run.runs_dir = runs.path().join("runs");
+    // The env's (cos θ, sin θ, θ') only: both sides append the feature of ε_action_norm
+    // 0.02, between grid points, and a Gaussian mean moves with any change of its input,
+    // so a feature computed differently shows in the actions.
+    let obs = observations(64, 3, 8.0);
+    agent_and_python_agree(cfg, &server, &obs, "json", Some("action_norm=0.02")).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -140,11 +171,11 @@ async fn a_pendulum_policy_in_pytorch_acts_and_returns_as_the_agent() {
     .unwrap();
     cfg.run.runs_dir = runs.path().join("runs");
     // Pendulum observes (cos θ, sin θ, θ') with |θ'| <= 8: a wider range saturates tanh.
-    agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy").await;
+    agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy", None).await;
 }
 
-/// `agent act` (the real binary) on `obs`, writing `actions`.
-fn agent_act(run: &Path, obs: &Path, actions: &Path) {
+/// `agent act` (the real binary) on `obs`, writing `actions`, at `epsilon` if given.
+fn agent_act(run: &Path, obs: &Path, actions: &Path, epsilon: Option<&str>) {
     let act = Command::new(env!("CARGO_BIN_EXE_agent"))
         .args(["act", "--checkpoint"])
         .arg(run)
@@ -152,6 +183,7 @@ fn agent_act(run: &Path, obs: &Path, actions: &Path) {
         .arg(obs)
         .arg("--out")
         .arg(actions)
+        .args(epsilon.map_or(vec![], |e| vec!["--epsilon", e]))
         .output()
         .unwrap();
     assert!(
@@ -180,7 +212,7 @@ fn a_mocap_policy_in_pytorch_acts_as_the_agent() {
     let obs_path = dir.path().join("obs.json");
     std::fs::write(&obs_path, serde_json::to_string(&obs).unwrap()).unwrap();
     let actions_path = dir.path().join("actions.json");
-    agent_act(&run, &obs_path, &actions_path);
+    agent_act(&run, &obs_path, &actions_path, None);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
     let out = Command::new(default_python())
         .arg(script)

@@ -41,6 +41,9 @@ checkpoint gives the returns `agent eval` prints:
 
 `agent act --checkpoint RUN --observations OBS.npy --out ACTIONS.npy` writes the agent's
 own deterministic actions for given observations, to compare `act` with.
+
+An ε-conditioned policy (one run for a whole front) acts at the preference given to
+`load_policy(run, epsilon={"treasure": 0.5})`, or at its grid's middle point.
 """
 
 from __future__ import annotations
@@ -88,7 +91,17 @@ class _Policy(nn.Module):
     `reference_match` (agent/src/nets/torso.rs). Parameters sit at the policy's root,
     as in the agent's VarStore."""
 
+    #: An ε-conditioned policy's preference features [F], appended to every observation
+    #: `act` is given (empty: not conditioned); set by `load_policy`.
+    preference: torch.Tensor
+
+    def _with_preference(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.preference.numel():
+            return x
+        return torch.cat([x, self.preference.expand(x.shape[0], -1)], dim=1)
+
     def _build_torso(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
+        self.register_buffer("preference", torch.zeros(0), persistent=False)
         arch = network.get("architecture", {"kind": "mlp"})
         layers = network["policy_layers"]
         self.latent_dim = 0
@@ -148,6 +161,7 @@ class GaussianPolicy(_Policy):
         """The env action [D] or [B, D]: the mean (or a sample, with a sampled latent
         for a mocap torso), clipped and scaled."""
         x, batched = _obs(obs)
+        x = self._with_preference(x)
         mean, std = self(x) if deterministic else self(x, self._noise(x))
         action = mean if deterministic else mean + std * torch.randn_like(mean)
         env_action = action.clamp(-1.0, 1.0) * self.action_scale + self.action_center
@@ -171,6 +185,7 @@ class CategoricalPolicy(_Policy):
         """The action index (int64), [] or [B]: the most likely, or a sample (with a
         sampled latent for a mocap torso)."""
         x, batched = _obs(obs)
+        x = self._with_preference(x)
         logits = self(x) if deterministic else self(x, self._noise(x))
         if deterministic:
             action = logits.argmax(-1)
@@ -179,8 +194,15 @@ class CategoricalPolicy(_Policy):
         return action if batched else action[0]
 
 
-def load_policy(path: str | pathlib.Path) -> GaussianPolicy | CategoricalPolicy:
-    """The online policy of a checkpoint directory, or of a run directory's latest one."""
+def load_policy(
+    path: str | pathlib.Path, epsilon: dict[str, float] | None = None
+) -> GaussianPolicy | CategoricalPolicy:
+    """The online policy of a checkpoint directory, or of a run directory's latest one.
+
+    An ε-conditioned policy (`learner.conditioning`) acts at `epsilon` (conditioned
+    objective -> ε > 0, on its training grid or not; default: the grid's middle point),
+    as `agent act --epsilon` and `agent eval --epsilon` do: `act` takes the env's
+    observations and appends the preference features itself."""
     path = pathlib.Path(path)
     latest = path / "checkpoints" / "latest.json"
     if latest.exists():
@@ -220,7 +242,50 @@ def load_policy(path: str | pathlib.Path) -> GaussianPolicy | CategoricalPolicy:
                 f"{list(expected[name].shape)}, got {list(tensor.shape)}"
             )
     policy.load_state_dict(ours)
+    policy.preference = torch.tensor(preference_features(state["config"], dims, epsilon), dtype=torch.float32)
     return policy.eval()
+
+
+def preference_features(config: dict[str, Any], dims: dict[str, Any], epsilon: dict[str, float] | None) -> list[float]:
+    """The input features of preference `epsilon` for a learner `config` (`[]` when it
+    is not conditioned), transcribed from agent/src/algo/preferences.rs: the grid is
+    the product of the conditioned objectives' ε lists in env objective order (earlier
+    objectives vary slowest), and each conditioned objective's feature is log ε scaled
+    so that its list spans [-1, 1]. A partial `epsilon` keeps the first grid point's
+    other values."""
+    conditioning = config.get("conditioning")
+    if conditioning is None:
+        if epsilon:
+            raise ValueError(
+                "epsilon: given only for an ε-conditioned policy (learner.conditioning); "
+                f"this checkpoint's policy has its ε fixed, got {epsilon}"
+            )
+        return []
+    names = list(dims["reward_names"])
+    fixed = {o["name"]: o["epsilon"] for o in config["objectives"]}
+    lists = conditioning["epsilon"]
+    axes = [name for name in names if name in lists]
+    points = [[fixed[name] for name in names]]
+    for name in axes:
+        k = names.index(name)
+        points = [p[:k] + [v] + p[k + 1 :] for p in points for v in lists[name]]
+    if epsilon is None:
+        eps = points[len(points) // 2]
+    else:
+        eps = list(points[0])
+        for name, value in epsilon.items():
+            if name not in axes:
+                raise ValueError(f"epsilon: {name!r} is not a conditioned objective (conditioned: {axes})")
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"epsilon: ε of {name} must be > 0, got {value}")
+            eps[names.index(name)] = value
+    features = []
+    for name in axes:
+        logs = [math.log(v) for v in lists[name]]
+        lo, hi = min(logs), max(logs)
+        half = (hi - lo) / 2 if hi > lo else 1.0
+        features.append((math.log(eps[names.index(name)]) - (lo + hi) / 2) / half)
+    return features
 
 
 def _bounds(bounds: dict[str, Any] | None, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
