@@ -14,7 +14,7 @@ import pytest
 import torch
 from safetensors.numpy import save_file
 
-from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, flat_obs, load_policy
+from env_server.trained_policy import CategoricalPolicy, GaussianPolicy, flat_obs, load_policy, preference_features
 
 
 def _network(layers: list[int], tanh_mean: bool = True, min_variance: float = 1e-4) -> dict:
@@ -238,3 +238,37 @@ def test_mocap_policy_matches_a_numpy_transcription(tmp_path: pathlib.Path) -> N
     out = _torso(params, np.concatenate([z, obs[:, [0, 1, 5]]], axis=1), len(layers))
     mean = np.tanh((out @ params["head.weight"].T + params["head.bias"])[:, :d])
     np.testing.assert_allclose(policy.act(obs).numpy(), mean, rtol=1e-5, atol=1e-6)
+
+
+def test_preference_features_follow_the_agents_grid() -> None:
+    """Hand-derived: a conditioned objective's log ε spans [-1, 1] over its list; the
+    default is the grid's middle point, with earlier objectives (env order) varying
+    slowest, as agent/src/algo/preferences.rs builds it."""
+    dims = {"reward_names": ["time", "treasure"]}
+    objectives = [{"name": "time", "epsilon": 0.02}, {"name": "treasure", "epsilon": 0.1}]
+    one = {"objectives": objectives, "conditioning": {"epsilon": {"treasure": [0.005, 0.05, 0.5]}}}
+    assert preference_features(one, dims, None) == pytest.approx([0.0])  # 0.05, the middle
+    assert preference_features(one, dims, {"treasure": 0.5}) == pytest.approx([1.0])
+    # Off the grid: log(0.2 / 0.05) / log(10).
+    assert preference_features(one, dims, {"treasure": 0.2}) == pytest.approx([math.log(4) / math.log(10)])
+    # Points (time, treasure): (0.01, 0.005), (0.01, 0.5), (0.1, 0.005), (0.1, 0.5); the middle is the third.
+    two = {"objectives": objectives, "conditioning": {"epsilon": {"treasure": [0.005, 0.5], "time": [0.01, 0.1]}}}
+    assert preference_features(two, dims, None) == pytest.approx([1.0, -1.0])
+    # A partial preference keeps the first point's other values.
+    assert preference_features(two, dims, {"treasure": 0.5}) == pytest.approx([-1.0, 1.0])
+
+
+@pytest.mark.parametrize(
+    ("conditioning", "epsilon", "message"),
+    [
+        ({"epsilon": {"treasure": [0.05, 0.5]}}, {"time": 0.1}, "epsilon: 'time' is not a conditioned objective"),
+        ({"epsilon": {"treasure": [0.05, 0.5]}}, {"treasure": 0.0}, "epsilon: ε of treasure must be > 0, got 0.0"),
+        (None, {"treasure": 0.5}, "epsilon: given only for an ε-conditioned policy"),
+    ],
+)
+def test_a_preference_that_does_not_fit_is_refused_by_name(conditioning, epsilon, message: str) -> None:
+    config = {"objectives": [{"name": "time", "epsilon": 0.02}, {"name": "treasure", "epsilon": 0.1}]}
+    if conditioning is not None:
+        config["conditioning"] = conditioning
+    with pytest.raises(ValueError, match=message):
+        preference_features(config, {"reward_names": ["time", "treasure"]}, epsilon)
