@@ -275,9 +275,20 @@ def cluster() -> Iterator[object]:
     from ray.cluster_utils import Cluster
 
     started = time.monotonic()
-    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 3, "include_dashboard": False})
-    c.worker = c.add_node(num_cpus=3)
-    c.wait_for_nodes()
+    # Ray gives a new node's raylet 30 s to register with the GCS (hard-coded in
+    # ray/_private/node.py) and now and then one misses it on this 2-core machine, before
+    # any code of ours runs: a fresh cluster is tried, up to three in all.
+    for attempt in range(1, 4):
+        c = Cluster(initialize_head=True, head_node_args={"num_cpus": 3, "include_dashboard": False})
+        try:
+            c.worker = c.add_node(num_cpus=3)
+            c.wait_for_nodes()
+            break
+        except Exception as exc:
+            c.shutdown()
+            if attempt == 3:
+                raise
+            print(f"two-node cluster, attempt {attempt}: {exc}; starting another", file=sys.stderr)
     print(f"two-node cluster up in {time.monotonic() - started:.1f} s", file=sys.stderr)
     try:
         yield c
