@@ -5,14 +5,13 @@
 
 mod cli;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 use agent::checkpoint::run::latest_checkpoint;
-use agent::env::server_process::{LocalServer, ServerOptions, default_python};
-use cli::{agent_cmd, run_dir_in, smoke_dst};
+use agent::env::server_process::{LocalServer, ServerOptions};
+use cli::{agent_cmd, run_dir_in, smoke_dst, summary, tensorboard_scalars};
 
 /// Wait until the run in `runs` has a checkpoint past `learner_steps`, then send `signal`.
 fn signal_after(child: &mut Child, runs: &Path, learner_steps: u64, signal: i32) -> PathBuf {
@@ -34,26 +33,6 @@ fn signal_after(child: &mut Child, runs: &Path, learner_steps: u64, signal: i32)
     // SAFETY: kill(2) on our own child's pid, with a valid signal number.
     assert_eq!(unsafe { libc::kill(pid, signal) }, 0);
     run
-}
-
-fn summary(run: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
-}
-
-/// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
-fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/read_tensorboard.py");
-    let out = Command::new(default_python())
-        .arg(script)
-        .arg(run)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -8,6 +8,7 @@
 //! untrained learner's checkpoint, actions only; and an ε-conditioned pendulum policy
 //! at a preference off its training grid.
 
+mod cli;
 mod common;
 
 use std::path::Path;
@@ -16,10 +17,11 @@ use std::process::Command;
 use agent::algo::preferences::parse_setting;
 use agent::checkpoint::run::{RunProgress, write_run_checkpoint};
 use agent::env::connection::ConnectionConfig;
-use agent::env::server_process::{LocalServer, ServerOptions, default_python};
+use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::eval::evaluate_checkpoint_at;
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train};
+use cli::python_json;
 use tch::Tensor;
 
 /// `n` observations of `dim` values spread over [-scale, scale] (no two rows alike), so
@@ -68,24 +70,11 @@ async fn agent_and_python_agree(
     // agent/src/eval.rs: seeds disjoint from training's, at most env.num_envs instances.
     let seed = cfg_seed + 1_000_000;
     let num_envs = episodes.clamp(1, num_envs);
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
-    let epsilon_args: Vec<&str> = epsilon.map_or(vec![], |e| vec!["--epsilon", e]);
-    let out = Command::new(default_python())
-        .arg(script)
-        .args(&epsilon_args)
-        .arg(&run)
-        .arg(&obs_path)
-        .arg(&actions_path)
-        .args([&address, &env_id])
-        .args([episodes, seed as usize, num_envs].map(|v| v.to_string()))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let python: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut args: Vec<String> = epsilon.map_or(vec![], |e| vec!["--epsilon".into(), e.into()]);
+    args.extend([&run, &obs_path, &actions_path].map(|p| p.display().to_string()));
+    args.extend([address.clone(), env_id]);
+    args.extend([episodes, seed as usize, num_envs].map(|v| v.to_string()));
+    let python = python_json("python_policy.py", &args);
     let diff = python["max_abs_diff"].as_f64().unwrap();
     assert!(
         diff <= 1e-5,
@@ -132,12 +121,12 @@ async fn a_dst_policy_in_pytorch_acts_and_returns_as_the_agent() {
     agent_and_python_agree(cfg, &server, &observations(64, 2, 10.0), "json", None).await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent() {
-    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
-    let runs = tempfile::tempdir().unwrap();
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum-conditioned.toml");
+/// `configs/mompo/<file>` cut to 1,600 env steps and one evaluation episode, its runs
+/// under `dir/runs`.
+fn short_pendulum(file: &str, dir: &Path) -> TrainConfig {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../configs/mompo")
+        .join(file);
     let mut cfg = TrainConfig::load_with(
         &path,
         &[
@@ -147,7 +136,15 @@ async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent(
         ],
     )
     .unwrap();
-    cfg.run.runs_dir = runs.path().join("runs");
+    cfg.run.runs_dir = dir.join("runs");
+    cfg
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path());
     // The env's (cos θ, sin θ, θ') only: both sides append the feature of ε_action_norm
     // 0.02, between grid points, and a Gaussian mean moves with any change of its input,
     // so a feature computed differently shows in the actions.
@@ -159,17 +156,7 @@ async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent(
 async fn a_pendulum_policy_in_pytorch_acts_and_returns_as_the_agent() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum.toml");
-    let mut cfg = TrainConfig::load_with(
-        &path,
-        &[
-            "run.total_env_steps=1600".into(),
-            "run.min_replay_transitions=400".into(),
-            "run.eval_episodes=1".into(),
-        ],
-    )
-    .unwrap();
-    cfg.run.runs_dir = runs.path().join("runs");
+    let cfg = short_pendulum("pendulum.toml", runs.path());
     // Pendulum observes (cos θ, sin θ, θ') with |θ'| <= 8: a wider range saturates tanh.
     agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy", None).await;
 }
@@ -213,18 +200,7 @@ fn a_mocap_policy_in_pytorch_acts_as_the_agent() {
     std::fs::write(&obs_path, serde_json::to_string(&obs).unwrap()).unwrap();
     let actions_path = dir.path().join("actions.json");
     agent_act(&run, &obs_path, &actions_path, None);
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python_policy.py");
-    let out = Command::new(default_python())
-        .arg(script)
-        .args([&run, &obs_path, &actions_path])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let python: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let python = python_json("python_policy.py", &[&run, &obs_path, &actions_path]);
     let diff = python["max_abs_diff"].as_f64().unwrap();
     assert!(
         diff <= 1e-5,

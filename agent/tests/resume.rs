@@ -11,32 +11,16 @@
 
 mod cli;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use agent::checkpoint::run::latest_checkpoint;
-use agent::env::server_process::{LocalServer, ServerOptions, default_python};
+use agent::env::server_process::{LocalServer, ServerOptions};
 use cli::{
     agent_cmd, copy_dir, episode_rows, learner_rows, learner_steps, run_dir_in, smoke_dst, summary,
+    tensorboard_scalars,
 };
-
-/// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
-fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/read_tensorboard.py");
-    let out = Command::new(default_python())
-        .arg(script)
-        .arg(run)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
 
 fn resume(run: &Path, server: &str, extra: &[&str]) {
     let status = agent_cmd(&["train", "--resume", run.to_str().unwrap()])

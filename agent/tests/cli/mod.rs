@@ -3,8 +3,11 @@
 //! its files back.
 #![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+
+use agent::env::server_process::default_python;
 
 /// `agent <args>`, quiet.
 pub fn agent_cmd(args: &[&str]) -> Command {
@@ -91,4 +94,28 @@ pub fn copy_dir(from: &Path, to: &Path) {
             std::fs::copy(entry.path(), &target).unwrap();
         }
     }
+}
+
+/// The JSON that `agent/tests/<script>` prints when run with `args` by the venv's
+/// Python; its stderr in the message when it fails.
+pub fn python_json<S: AsRef<std::ffi::OsStr>>(script: &str, args: &[S]) -> serde_json::Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests")
+        .join(script);
+    let out = Command::new(default_python())
+        .arg(script)
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
+pub fn tensorboard_scalars(run: &Path) -> BTreeMap<String, Vec<(u64, f64)>> {
+    serde_json::from_value(python_json("read_tensorboard.py", &[run])).unwrap()
 }
