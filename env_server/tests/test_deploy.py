@@ -11,8 +11,7 @@ port; the probes ask grpc.health.v1 over TLS (and the probe command works agains
 TLS server); the server's flags are real `python -m env_server` flags (parsed with its own
 argparse builder, so renaming a flag fails here) and point at files of mounted Secrets;
 the agent Job reaches the Service with `--server dns:NAME:PORT`; the GPU overlay asks for
-a GPU and `--device cuda`; the sweep's indexed Job, its merge Job and their scripts agree
-on the shard count, folders and volume; the Dockerfiles install from requirements.lock and keep the
+a GPU and `--device cuda`; the Dockerfiles install from requirements.lock and keep the
 agent's libtorch rpath valid.
 """
 
@@ -23,108 +22,32 @@ import json
 import os
 import pathlib
 import re
-import shutil
 import subprocess
 import sys
-from typing import Any
 
 import pytest
 from conftest import running_server
+from deploy_manifests import (
+    BASE,
+    DOCKER,
+    GPU,
+    ROOT,
+    SCRIPT,
+    Manifest,
+    agent_flag_exists,
+    container,
+    env_server_of,
+    env_value,
+    mounted_file,
+    needs_kubectl,
+    one,
+    probe_args,
+    render,
+    secret_key,
+)
 
 from env_server import devcerts, healthcheck
-from env_server.__main__ import _parser as server_parser
 from env_server.registry import Registry
-
-ROOT = pathlib.Path(__file__).resolve().parents[2]
-K8S = ROOT / "deploy" / "k8s"
-DOCKER = ROOT / "deploy" / "docker"
-BASE = K8S / "base"
-GPU = K8S / "overlays" / "gpu"
-SCRIPT = BASE / "agent" / "train-or-resume.sh"
-SWEEP = K8S / "sweep"
-SHARD_SCRIPT = SWEEP / "agent" / "sweep-shard.sh"
-REPORT_SCRIPT = SWEEP / "agent" / "sweep-report.sh"
-
-KUBECTL = shutil.which("kubectl")
-needs_kubectl = pytest.mark.skipif(KUBECTL is None, reason="kubectl (with its built-in kustomize) is not on PATH")
-
-Manifest = dict[str, Any]
-
-
-def _kubectl(*args: str, stdin: str | None = None) -> str:
-    # No cluster is contacted: kustomize reads files, and label --local edits what it is given.
-    env = {**os.environ, "KUBECONFIG": os.devnull}
-    done = subprocess.run(
-        [KUBECTL, *args], input=stdin, capture_output=True, text=True, timeout=120, env=env, check=False
-    )
-    assert done.returncode == 0, f"kubectl {' '.join(args)} failed: {done.stderr}"
-    return done.stdout
-
-
-def render(path: pathlib.Path) -> list[Manifest]:
-    """Every object `kubectl kustomize path` renders, as JSON-decoded dicts."""
-    rendered = _kubectl("kustomize", str(path))
-    text = _kubectl("label", "--local", "-f", "-", "-o", "json", "mo-mpo-render-test-", stdin=rendered)
-    decoder, objects, at = json.JSONDecoder(), [], 0
-    while True:
-        while at < len(text) and text[at].isspace():
-            at += 1
-        if at == len(text):
-            break
-        obj, at = decoder.raw_decode(text, at)
-        objects.extend(obj["items"] if obj.get("kind") == "List" else [obj])
-    assert len(objects) == rendered.count("\nkind: ") + rendered.startswith("kind: "), "an object was lost"
-    return objects
-
-
-def one(objects: list[Manifest], kind: str, name: str | None = None) -> Manifest:
-    found = [o for o in objects if o["kind"] == kind and (name is None or o["metadata"]["name"] == name)]
-    assert len(found) == 1, f"expected one {kind} {name or ''}, got {[o['metadata']['name'] for o in found]}"
-    return found[0]
-
-
-def container(workload: Manifest, name: str) -> Manifest:
-    return next(c for c in workload["spec"]["template"]["spec"]["containers"] if c["name"] == name)
-
-
-def mounted_file(workload: Manifest, c: Manifest, path: str) -> tuple[Manifest, str]:
-    """The pod volume that holds file `path` in container `c`, and the file's key in it."""
-    for mount in c.get("volumeMounts", []):
-        prefix = mount["mountPath"].rstrip("/") + "/"
-        if path.startswith(prefix):
-            volumes = workload["spec"]["template"]["spec"]["volumes"]
-            volume = next(v for v in volumes if v["name"] == mount["name"])
-            return volume, path[len(prefix) :]
-    raise AssertionError(f"{path} is under no volume mount of container {c['name']}")
-
-
-def secret_key(workload: Manifest, c: Manifest, path: str) -> tuple[str, str]:
-    volume, key = mounted_file(workload, c, path)
-    assert "secret" in volume, f"{path} is in volume {volume['name']}, expected a Secret volume"
-    return volume["secret"]["secretName"], key
-
-
-def env_value(c: Manifest, name: str) -> str | None:
-    for item in c.get("env", []):
-        if item["name"] == name:
-            return item.get("value")
-    return None
-
-
-def parse_server_args(args: list[str]) -> argparse.Namespace:
-    try:
-        return server_parser().parse_args(args)
-    except SystemExit as exc:  # argparse exits on an unknown or malformed flag
-        raise AssertionError(f"`python -m env_server` refuses the manifest's args {args}") from exc
-
-
-def probe_args(probe: Manifest) -> argparse.Namespace:
-    command = probe["exec"]["command"]
-    assert command[:3] == ["python", "-m", "env_server.healthcheck"], command
-    try:
-        return healthcheck._parser().parse_args(command[3:])
-    except SystemExit as exc:
-        raise AssertionError(f"env_server.healthcheck refuses the probe's args {command}") from exc
 
 
 @pytest.fixture(scope="module")
@@ -139,9 +62,7 @@ def gpu() -> list[Manifest]:
 
 @pytest.fixture(scope="module")
 def server(base: list[Manifest]) -> tuple[Manifest, Manifest, argparse.Namespace]:
-    sts = one(base, "StatefulSet", "env-server")
-    c = container(sts, "env-server")
-    return sts, c, parse_server_args(c["args"])
+    return env_server_of(base)
 
 
 # ---------------------------------------------------------------------- env_server
@@ -217,21 +138,6 @@ def test_the_probe_command_answers_for_a_tls_server(tmp_path: pathlib.Path) -> N
 
 
 # ---------------------------------------------------------------------- agent
-# The agent's command line: main.rs, and the flags several subcommands share (cli/args.rs).
-AGENT_MAIN = "\n".join(
-    (ROOT / "agent" / "src" / path).read_text(encoding="utf-8") for path in ("main.rs", "cli/args.rs")
-)
-
-
-def agent_flag_exists(flag: str) -> bool:
-    """Whether the agent's command line declares `--flag` (clap derive: `long = "flag"`, or a
-    `#[arg(long...)]` field named like it)."""
-    name = flag.removeprefix("--")
-    field = name.replace("-", "_")
-    # The attribute ends at its line's `)]` (its own lists, e.g. conflicts_with_all = [..], hold `]`).
-    return f'long = "{name}"' in AGENT_MAIN or re.search(rf"#\[arg\(long[^\n]*\)\]\s*(?:///.*\s*)*{field}:", AGENT_MAIN)
-
-
 @needs_kubectl
 def test_agent_job_reaches_the_headless_service_by_dns(base, server) -> None:
     sts, _, server_args = server
@@ -367,150 +273,6 @@ def test_train_or_resume_starts_resumes_and_stops(tmp_path: pathlib.Path) -> Non
     assert _run_script(tmp_path, runs, JOB_NAME="job-b")[1][:2] == ["train", "--config"]
 
 
-# ---------------------------------------------------------------------- the sharded sweep
-@pytest.fixture(scope="module")
-def sweep() -> list[Manifest]:
-    return render(SWEEP)
-
-
-def _sweep_jobs(text: str) -> int:
-    """How many runs a sweep file makes (settings x seeds), as agent/src/sweep/config.rs counts them."""
-    import tomllib
-
-    cfg = tomllib.loads(text)
-    settings = 1 if cfg["grid"].get("product") else 0
-    for values in cfg["grid"].get("product", {}).values():
-        settings *= values["linspace"][2] if isinstance(values, dict) else len(values)
-    settings += len(cfg["grid"].get("points", []))
-    return settings * len(cfg.get("seeds", [0]))
-
-
-@needs_kubectl
-def test_sweep_keeps_the_base_servers_and_drops_the_training_job(base, sweep) -> None:
-    kept = [o for o in base if o["kind"] in ("Service", "StatefulSet")]
-    assert kept == [o for o in sweep if o["kind"] in ("Service", "StatefulSet")]
-    assert {o["metadata"]["name"] for o in sweep if o["kind"] == "Job"} == {"agent-sweep", "agent-sweep-report"}
-    assert not [o for o in sweep if o["metadata"]["name"].startswith(("agent-runs", "agent-train", "agent-scripts"))]
-
-
-@needs_kubectl
-def test_sweep_job_runs_one_shard_per_completion_index_and_the_merge_waits_for_all(sweep, server) -> None:
-    sts, _, server_args = server
-    job, report = one(sweep, "Job", "agent-sweep"), one(sweep, "Job", "agent-sweep-report")
-    spec, pod = job["spec"], job["spec"]["template"]["spec"]
-    c, r = container(job, "agent"), container(report, "report")
-    assert spec["completionMode"] == "Indexed"
-    # N is written three times: the completions and both Jobs' SHARDS.
-    shards = spec["completions"]
-    assert int(env_value(c, "SHARDS")) == int(env_value(r, "SHARDS")) == shards
-    assert 1 <= spec["parallelism"] <= shards
-    assert env_value(c, "SWEEP_ROOT") == env_value(r, "SWEEP_ROOT")
-    # Retries resume the shard: each is a new pod (the API's rule for these fields).
-    assert pod["restartPolicy"] == "Never" and spec["backoffLimitPerIndex"] >= 1
-    # ... and never beside the pod it replaces, which may still be writing the folder.
-    assert spec["podReplacementPolicy"] == "Failed"
-    assert pod["terminationGracePeriodSeconds"] >= 60
-    # The scripts and the sweep from their ConfigMaps.
-    for workload, cont, script in ((job, c, SHARD_SCRIPT), (report, r, REPORT_SCRIPT)):
-        volume, key = mounted_file(workload, cont, cont["command"][-1])
-        assert one(sweep, "ConfigMap", volume["configMap"]["name"])["data"][key] == script.read_text()
-    volume, key = mounted_file(job, c, env_value(c, "SWEEP_CONFIG"))
-    files = one(sweep, "ConfigMap", volume["configMap"]["name"])["data"]
-    import tomllib
-
-    sweep_file = tomllib.loads(files[key])
-    assert sweep_file["base"] in files, "the sweep's base config is beside it in the ConfigMap"
-    # Copies of the repository's configs (kustomize reads only files under its folder).
-    assert files[key] == (ROOT / "configs" / "sweeps" / "dst-quick.toml").read_text().replace(
-        'base = "../mompo/dst.toml"', 'base = "dst.toml"'
-    )
-    assert files[sweep_file["base"]] == (ROOT / "configs" / "mompo" / "dst.toml").read_text()
-    assert _sweep_jobs(files[key]) >= shards, "agent sweep refuses more shards than jobs"
-    # Every shard and the merge see one volume, which shards on several nodes share.
-    claims = set()
-    for workload, cont in ((job, c), (report, r)):
-        volume, _ = mounted_file(workload, cont, env_value(cont, "SWEEP_ROOT") + "/x")
-        claims.add(volume["persistentVolumeClaim"]["claimName"])
-    (claim,) = claims
-    assert one(sweep, "PersistentVolumeClaim", claim)["spec"]["accessModes"] == ["ReadWriteMany"]
-    # The shards reach the servers as the training Job does.
-    args = c["args"]
-    for flag in (a for a in args if a.startswith("--")):
-        assert agent_flag_exists(flag), f"agent sweep has no {flag}"
-    assert args[args.index("--server") + 1] == f"dns:{sts['spec']['serviceName']}:{server_args.port}"
-    assert secret_key(job, c, args[args.index("--tls-ca") + 1]) == ("env-server-ca", "ca.crt")
-    assert secret_key(job, c, args[args.index("--token-file") + 1]) == ("agent-token", "token")
-    for flag in ("--shard", "--resume", "--report", "--dir"):
-        assert agent_flag_exists(flag), f"the scripts call agent sweep {flag}"
-
-
-def _stub(tmp_path: pathlib.Path) -> tuple[pathlib.Path, pathlib.Path]:
-    calls = tmp_path / "calls"
-    stub = tmp_path / "agent-stub"
-    stub.write_text(f'#!/bin/sh\nprintf "%s\\n" "$@" > {calls}\n')
-    stub.chmod(0o755)
-    return stub, calls
-
-
-def test_sweep_shard_starts_its_slice_then_resumes_its_folder(tmp_path: pathlib.Path) -> None:
-    stub, calls = _stub(tmp_path)
-    root = tmp_path / "sweeps"
-    server = ["--server", "dns:env-server:50051"]
-
-    def run(**env: str) -> tuple[int, list[str] | None, str]:
-        calls.unlink(missing_ok=True)
-        done = subprocess.run(
-            ["/bin/sh", str(SHARD_SCRIPT), *server],
-            env={"PATH": os.environ["PATH"], "AGENT": str(stub), "SWEEP_ROOT": str(root), **env},
-            capture_output=True,
-            text=True,
-            timeout=30,
-            check=False,
-        )
-        return done.returncode, calls.read_text().splitlines() if calls.exists() else None, done.stderr
-
-    folder = root / "shard-1-of-3"
-    config = "/etc/agent/sweep/sweep.toml"
-    start = ["sweep", "--config", config, "--shard", "1/3", "--dir", str(folder), *server]
-    assert run(JOB_COMPLETION_INDEX="1", SHARDS="3")[:2] == (0, start)
-    # A pod that died before the folder's sweep.json starts again; after it, pods resume.
-    folder.mkdir(parents=True)
-    assert run(JOB_COMPLETION_INDEX="1", SHARDS="3")[:2] == (0, start)
-    (folder / "sweep.json").write_text("{}")
-    resume = ["sweep", "--resume", str(folder), *server]
-    assert run(JOB_COMPLETION_INDEX="1", SHARDS="3")[:2] == (0, resume)
-    assert run(JOB_COMPLETION_INDEX="1", SHARDS="3", LEARNER_DEVICE="cuda")[1] == [*resume, "--device", "cuda"]
-    code, called, err = run(SHARDS="3")
-    assert code != 0 and called is None and "expected JOB_COMPLETION_INDEX" in err
-
-
-def test_sweep_report_waits_for_every_shard_then_merges(tmp_path: pathlib.Path) -> None:
-    import time
-
-    stub, calls = _stub(tmp_path)
-    root = tmp_path / "sweeps"
-    folders = [root / f"shard-{i}-of-3" for i in range(3)]
-    for folder in folders[:2]:
-        folder.mkdir(parents=True)
-        (folder / "summary.json").write_text("{}")
-    proc = subprocess.Popen(
-        ["/bin/sh", str(REPORT_SCRIPT)],
-        env={"PATH": os.environ["PATH"], "AGENT": str(stub), "SWEEP_ROOT": str(root), "SHARDS": "3", "POLL_S": "0.1"},
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        time.sleep(1.0)
-        assert proc.poll() is None and not calls.exists(), "merged before shard 2 finished"
-        folders[2].mkdir(parents=True)
-        (folders[2] / "summary.json").write_text("{}")
-        assert proc.wait(30) == 0, proc.stderr.read()
-    finally:
-        proc.kill()
-    assert calls.read_text().splitlines() == ["sweep", "--report", *map(str, folders), "--dir", str(root / "front")]
-
-
-# ---------------------------------------------------------------------- container build files
 def _python_minor() -> str:
     return f"{sys.version_info.major}.{sys.version_info.minor}"
 
