@@ -1,7 +1,7 @@
 """A Session: B Task instances stepped as one batch, with autoreset and episode accounting.
 
-Where the instances run (in this process, or spread over worker processes) is
-instances.py's business; a Session hands them one batch of steps and resets per call.
+Where the instances run (in this process, or spread over worker processes) is the
+business of instances.py, workers.py and construction.py; a Session hands them one batch of steps and resets per call.
 
 This is the whole server minus gRPC: validation, seeding, autoreset, time limits and
 server-side episode returns live here, so bench_inprocess measures exactly what the
