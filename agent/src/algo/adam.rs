@@ -4,6 +4,7 @@
 //! `m = b1 m + (1-b1) g`, `v = b2 v + (1-b2) g^2`,
 //! `p -= lr / (1 - b1^t) * m / (sqrt(v) / sqrt(1 - b2^t) + eps)`.
 
+use crate::nets::Members;
 use std::collections::HashMap;
 use tch::{Kind, Tensor, nn};
 
@@ -113,6 +114,49 @@ impl Adam {
             }
             total
         })
+    }
+
+    /// `clip_grad_norm` for `members` stacked members: each member's gradients (its
+    /// slices of every parameter) are scaled by their own global norm, without a host
+    /// read. One member is `clip_grad_norm` itself.
+    pub fn clip_grad_norm_members(&self, max: f64, members: Members) {
+        if !members.stacked() {
+            self.clip_grad_norm(max);
+            return;
+        }
+        tch::no_grad(|| {
+            let grads: Vec<Tensor> = self
+                .params
+                .iter()
+                .map(|(_, p)| p.grad())
+                .filter(Tensor::defined)
+                .collect();
+            let Some(first) = grads.first() else {
+                return;
+            };
+            let mut squares = first
+                .zeros_like()
+                .flatten(1, -1)
+                .narrow(1, 0, 1)
+                .squeeze_dim(1);
+            for g in &grads {
+                squares += g
+                    .square()
+                    .flatten(1, -1)
+                    .sum_dim_intlist(1, false, Kind::Float);
+            }
+            // min(1, max / (norm + 1e-6)): members under the bound keep their gradient.
+            let scale = (squares.sqrt() + 1e-6)
+                .reciprocal()
+                .g_mul_scalar(max)
+                .clamp_max(1.0);
+            for mut g in grads {
+                let shape: Vec<i64> = std::iter::once(members.count())
+                    .chain(std::iter::repeat_n(1, g.dim() - 1))
+                    .collect();
+                let _ = g.g_mul_(&scale.reshape(shape.as_slice()));
+            }
+        });
     }
 
     /// Applies one update to every parameter that has a gradient.

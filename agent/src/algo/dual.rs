@@ -12,9 +12,13 @@
 //! alpha_mu and alpha_Sigma; 1 for a categorical one) of P each (1 when the summed KL is
 //! bounded, D when each action dimension's KL is, see `mstep.rs`). They are stored
 //! flat, part by part, so a summed Gaussian's parameter is `[2]` as it always was.
+//!
+//! A population of P >= 2 members stacks every parameter behind a member axis
+//! (`[P, K]`, `[P, parts * P]`); one member keeps the unstacked shapes.
 
 use super::adam::{Adam, AdamConfig};
 use crate::config::TemperatureParameterization;
+use crate::nets::Members;
 use tch::{Device, Kind, Tensor};
 
 /// Added to softplus so a multiplier is never exactly 0.
@@ -74,11 +78,33 @@ impl Duals {
         temperature_kind: TemperatureParameterization,
         device: Device,
     ) -> Self {
+        Self::with_members(
+            temperatures,
+            alphas,
+            lr,
+            temperature_kind,
+            device,
+            Members::ONE,
+        )
+    }
+
+    /// As `new`, for `members` members that all start at the given values.
+    pub fn with_members(
+        temperatures: &[f64],
+        alphas: &[&[f64]],
+        lr: f64,
+        temperature_kind: TemperatureParameterization,
+        device: Device,
+        members: Members,
+    ) -> Self {
         let make = |values: &[f64], inverse: fn(f64) -> f64| {
             let raw: Vec<f32> = values.iter().map(|&v| inverse(v) as f32).collect();
-            Tensor::from_slice(&raw)
-                .to_device(device)
-                .set_requires_grad(true)
+            let one = Tensor::from_slice(&raw).to_device(device);
+            let stacked = match members.stacked() {
+                true => one.unsqueeze(0).repeat([members.count(), 1]),
+                false => one,
+            };
+            stacked.set_requires_grad(true)
         };
         let temperature_param = make(
             temperatures,
@@ -103,7 +129,7 @@ impl Duals {
         }
     }
 
-    /// eta_k, `[K]`, differentiable.
+    /// eta_k, `[K]` (`[P, K]` stacked), differentiable.
     pub fn temperature(&self) -> Tensor {
         match self.temperature_kind {
             TemperatureParameterization::Softplus => positive(&self.temperature_param),
@@ -111,9 +137,11 @@ impl Duals {
         }
     }
 
-    /// alpha values, `[parts, P]`, differentiable.
+    /// alpha values, `[parts, P]` (`[members, parts, P]` stacked), differentiable.
     pub fn alpha(&self) -> Tensor {
-        positive(&self.alpha_param).reshape([self.alpha_parts, -1])
+        let size = self.alpha_param.size();
+        let shape = [&size[..size.len() - 1], &[self.alpha_parts, -1]].concat();
+        positive(&self.alpha_param).reshape(shape.as_slice())
     }
 
     /// Clears the dual gradients (before the backward pass that fills them).

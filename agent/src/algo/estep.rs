@@ -32,7 +32,13 @@
 //! `eps_k = 0` gives uniform weights over all eligible pairs (q_k = p_old, no
 //! influence) and no dual gradient.
 //!
-//! Shape legend: M samples (or A actions), B states, N (s, a) pairs, K objectives.
+//! **Populations** (`StateMean::Members`): P members' E-steps at once, every tensor
+//! member-first (`q [P, M, B, K]`, `temperature`, `epsilon [P, 1, K]`); each member's
+//! dual averages over its own real states with the given state weights, so the loss
+//! is the sum of the P members' losses and each eta gets exactly its member's gradient.
+//!
+//! Shape legend: P members, M samples (or A actions), B states, N (s, a) pairs, K
+//! objectives.
 
 use tch::{Kind, Tensor};
 
@@ -44,7 +50,8 @@ pub struct EStepOutput {
     /// Scalar: sum over objectives with eps_k > 0 of the dual g(eta_k); gradient only
     /// with respect to `temperature`.
     pub temperature_loss: Tensor,
-    /// `[K]`, no gradient: realised KL(q_k || pi_old) averaged over states.
+    /// `[K]` (`[P, K]` for members), no gradient: realised KL(q_k || pi_old)
+    /// averaged over states.
     pub kl: Tensor,
 }
 
@@ -62,9 +69,37 @@ pub enum StateMean<'a> {
     /// (`weights [B]`, summing to 1 over the states of one grid point); the duals of
     /// all grid points are summed, each depending only on its own eta.
     PerGridPoint(&'a Tensor),
+    /// A population: `temperature` and `epsilon` are `[P, 1, K]`, and each member's
+    /// dual averages over its own states with `weights [P, B]` (summing to 1 over a
+    /// member's real states, 0 at the rows that only fill its batch to B).
+    Members(&'a Tensor),
 }
 
 impl StateMean<'_> {
+    /// `temperature` or `epsilon` shaped to divide `q [.., M, B, K]`.
+    fn per_sample(self, t: &Tensor) -> Tensor {
+        match self {
+            StateMean::Members(_) => t.unsqueeze(-3),
+            _ => t.shallow_clone(),
+        }
+    }
+
+    /// The mean over states of `x [.., B, K]` (per member for a population).
+    pub(crate) fn over_states(self, x: &Tensor) -> Tensor {
+        match self {
+            StateMean::Members(w) => (x * w.unsqueeze(-1)).sum_dim_intlist(-2, false, Kind::Float),
+            _ => x.mean_dim(-2, false, Kind::Float),
+        }
+    }
+
+    /// The mean over states of `x [.., B]` (per member for a population).
+    pub(crate) fn over_state_rows(self, x: &Tensor) -> Tensor {
+        match self {
+            StateMean::Members(w) => (x * w).sum_dim_intlist(-1, false, Kind::Float),
+            _ => x.mean_dim(-1, false, Kind::Float),
+        }
+    }
+
     /// `sum_k` of the dual `eta (eps + log_partition - offset)` over active objectives
     /// (`offset` = log M for the sampled E-step, 0 for the exact one).
     /// # Shapes
@@ -80,11 +115,11 @@ impl StateMean<'_> {
     ) -> Tensor {
         match self {
             StateMean::Uniform => {
-                let mean = log_partition.mean_dim(0, false, Kind::Float) - offset;
+                let mean = log_partition.mean_dim(-2, false, Kind::Float) - offset;
                 let dual = temperature * (epsilon + mean);
                 (dual * active).sum(Kind::Float)
             }
-            StateMean::PerGridPoint(weights) => {
+            StateMean::PerGridPoint(weights) | StateMean::Members(weights) => {
                 let dual = temperature * (epsilon + (log_partition - offset));
                 (dual * active * weights.unsqueeze(-1)).sum(Kind::Float)
             }
@@ -99,24 +134,30 @@ pub fn sampled_estep(q: &Tensor, temperature: &Tensor, epsilon: &Tensor) -> ESte
     sampled_estep_with(q, temperature, epsilon, StateMean::Uniform)
 }
 
-/// [`sampled_estep`] with temperature and epsilon `[K]` or, per grid point, `[B, K]`.
+/// [`sampled_estep`] with temperature and epsilon `[K]`, per grid point `[B, K]`, or
+/// for a population `[P, 1, K]` with `q [P, M, B, K]`.
 pub fn sampled_estep_with(
     q: &Tensor,
     temperature: &Tensor,
     epsilon: &Tensor,
     states: StateMean<'_>,
 ) -> EStepOutput {
-    let m = q.size()[0];
+    let m = q.size()[q.dim() - 3];
     let active = active_mask(epsilon);
-    let scaled = q.detach() / temperature;
-    let softmax = scaled.detach().softmax(0, Kind::Float);
-    let weights: Tensor = &softmax * &active + (1.0 - &active) / (m as f64);
-    let log_sum_exp = scaled.logsumexp([0i64].as_slice(), false);
+    let active_q = states.per_sample(&active);
+    let scaled = q.detach() / states.per_sample(temperature);
+    let softmax = scaled.detach().softmax(-3, Kind::Float);
+    let weights: Tensor = &softmax * &active_q + (1.0 - &active_q) / (m as f64);
+    let log_sum_exp = scaled.logsumexp([-3i64].as_slice(), false);
     let temperature_loss =
         states.temperature_loss(&log_sum_exp, (m as f64).ln(), temperature, epsilon, &active);
-    let kl = (&weights * (&weights * (m as f64)).clamp_min(1e-30).log())
-        .sum_dim_intlist(0, false, Kind::Float)
-        .mean_dim(0, false, Kind::Float);
+    let kl = states.over_states(
+        &(&weights * (&weights * (m as f64)).clamp_min(1e-30).log()).sum_dim_intlist(
+            -3,
+            false,
+            Kind::Float,
+        ),
+    );
     EStepOutput {
         weights,
         temperature_loss,
@@ -136,7 +177,8 @@ pub fn exact_estep(
     exact_estep_with(q, log_prior, temperature, epsilon, StateMean::Uniform)
 }
 
-/// [`exact_estep`] with temperature and epsilon `[K]` or, per grid point, `[B, K]`.
+/// [`exact_estep`] with temperature and epsilon `[K]`, per grid point `[B, K]`, or
+/// for a population `[P, 1, K]` with `q [P, A, B, K]` and `log_prior [P, A, B]`.
 pub fn exact_estep_with(
     q: &Tensor,
     log_prior: &Tensor,
@@ -145,16 +187,21 @@ pub fn exact_estep_with(
     states: StateMean<'_>,
 ) -> EStepOutput {
     let active = active_mask(epsilon);
+    let active_q = states.per_sample(&active);
     let log_prior = log_prior.detach().unsqueeze(-1);
-    let scaled = q.detach() / temperature + &log_prior;
-    let posterior = scaled.detach().softmax(0, Kind::Float);
-    let weights: Tensor = &posterior * &active + log_prior.exp() * (1.0 - &active);
-    let log_partition = scaled.logsumexp([0i64].as_slice(), false);
+    let scaled = q.detach() / states.per_sample(temperature) + &log_prior;
+    let posterior = scaled.detach().softmax(-3, Kind::Float);
+    let weights: Tensor = &posterior * &active_q + log_prior.exp() * (1.0 - &active_q);
+    let log_partition = scaled.logsumexp([-3i64].as_slice(), false);
     let temperature_loss =
         states.temperature_loss(&log_partition, 0.0, temperature, epsilon, &active);
-    let kl = (&weights * (weights.clamp_min(1e-30).log() - &log_prior))
-        .sum_dim_intlist(0, false, Kind::Float)
-        .mean_dim(0, false, Kind::Float);
+    let kl = states.over_states(
+        &(&weights * (weights.clamp_min(1e-30).log() - &log_prior)).sum_dim_intlist(
+            -3,
+            false,
+            Kind::Float,
+        ),
+    );
     EStepOutput {
         weights,
         temperature_loss,

@@ -16,6 +16,7 @@ pub mod movmpo;
 pub mod mstep;
 pub mod noise;
 pub mod objectives;
+pub mod population;
 pub mod preferences;
 pub mod retrace;
 pub mod state;

@@ -38,42 +38,97 @@ use super::preferences::{StatePreferences, collected_index, relabel};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
 use super::update::StepMeasures;
-use crate::nets::{ActionKind, GaussianParams, PolicyOutput};
+use crate::nets::{ActionKind, PolicyOutput};
 use crate::random::Purpose;
 use std::time::Instant;
 use tch::{Kind, Tensor};
 
-/// Indices of the real states among the N = (T+1)B rows of a snippet batch, or `None`
-/// when every row is real. Row (t, b) is real when step t is real (`valid`), or when
-/// step t-1 is real and not terminal (s_t is then the state it bootstraps from: the
-/// next state of a step, or the last observation of a time-limited episode).
-/// # Shapes
-/// `valid [T, B]`, `discounts [T, B] -> [R] i64`.
-pub fn real_states(valid: &Tensor, discounts: &Tensor) -> Option<Tensor> {
-    let b = valid.size()[1];
-    let acted = Tensor::cat(
-        &[valid.shallow_clone(), valid.zeros_like().narrow(0, 0, 1)],
-        0,
-    );
-    let bootstrapped = Tensor::cat(&[valid.zeros_like().narrow(0, 0, 1), valid * discounts], 0);
-    let real = acted.maximum(&bootstrapped).gt(0.5).reshape([-1]);
-    if real.all().int64_value(&[]) == 1 {
-        return None;
-    }
-    debug_assert_eq!(real.size()[0] % b, 0);
-    Some(real.nonzero().squeeze_dim(-1))
+/// Which of each member's N = (T+1)B states the E- and M-steps see, and how each
+/// state counts in a member's mean over states.
+#[derive(Debug)]
+pub struct RealStates {
+    /// `[P, R]` i64: member p's real rows first, in row order, then (up to R, the
+    /// largest member's count) copies of its first real row. `None` when every row
+    /// of every member is real (R = N).
+    pub index: Option<Tensor>,
+    /// `[P, R]` f32: 1 / (member's real count) at its real rows, 0 at the copies.
+    pub weight: Tensor,
 }
 
-/// `0.5 * mean over real rows of err^2`, per column.
+/// The real states of P members' snippet batches. Row (t, b) is real when step t is
+/// real (`valid`), or when step t-1 is real and not terminal (s_t is then the state
+/// it bootstraps from: the next state of a step, or the last observation of a
+/// time-limited episode). One member alone gets exactly its real rows (no copies).
 /// # Shapes
-/// `err [N, C]`, `valid [N]` (1 real, 0 padding) `-> [C]`.
+/// `valid [P, T, B]`, `discounts [P, T, B]`.
+pub fn real_states(valid: &Tensor, discounts: &Tensor) -> RealStates {
+    let size = valid.size();
+    let (p, b) = (size[0], size[2]);
+    let none = valid.zeros_like().narrow(1, 0, 1);
+    let acted = Tensor::cat(&[valid.shallow_clone(), none.shallow_clone()], 1);
+    let bootstrapped = Tensor::cat(&[none, valid * discounts], 1);
+    let real = acted.maximum(&bootstrapped).gt(0.5).reshape([p, -1]);
+    let n = real.size()[1];
+    debug_assert_eq!(n % b, 0);
+    let counts = real.sum_dim_intlist(1, true, Kind::Int64);
+    // One host read per step: the widest member's count sizes the index.
+    let widest = counts.max().int64_value(&[]);
+    if widest == n && counts.min().int64_value(&[]) == n {
+        let weight = Tensor::full([p, n], 1.0 / n as f64, (Kind::Float, valid.device()));
+        return RealStates {
+            index: None,
+            weight,
+        };
+    }
+    // Real row r of member p goes to slot (number of real rows before it); the rest to
+    // a spare slot that is cut off.
+    let slots = (real.cumsum(1, Kind::Int64) - 1).where_self(&real, &Tensor::from(widest));
+    let rows = Tensor::arange(n, (Kind::Int64, valid.device()))
+        .unsqueeze(0)
+        .expand([p, n], false)
+        .contiguous();
+    let first = real.to_kind(Kind::Int64).argmax(1, true);
+    let index = first
+        .expand([p, widest + 1], false)
+        .contiguous()
+        .scatter(1, &slots, &rows)
+        .narrow(1, 0, widest);
+    let position = Tensor::arange(widest, (Kind::Int64, valid.device())).unsqueeze(0);
+    let counted = position.lt_tensor(&counts).to_kind(Kind::Float);
+    RealStates {
+        index: Some(index),
+        weight: counted / counts.to_kind(Kind::Float),
+    }
+}
+
+/// Each member's rows along axis `dim` of `t`, at `index [P, R]`.
+/// # Shapes
+/// `t [P, .., N, ..]` (N at `dim`) `-> [P, .., R, ..]`.
+pub fn gather_states(t: &Tensor, index: &Tensor, dim: i64) -> Tensor {
+    let size = t.size();
+    let mut idx = index.shallow_clone();
+    for _ in 1..dim {
+        idx = idx.unsqueeze(1);
+    }
+    for _ in (dim as usize + 1)..size.len() {
+        idx = idx.unsqueeze(-1);
+    }
+    let mut shape = size.clone();
+    shape[dim as usize] = index.size()[1];
+    t.gather(dim, &idx.expand(shape.as_slice(), false), false)
+}
+
+/// `0.5 * mean over real rows of err^2`, per column (per member: leading axes of
+/// `err` and `valid` are kept).
+/// # Shapes
+/// `err [.., N, C]`, `valid [.., N]` (1 real, 0 padding) `-> [.., C]`.
 pub fn masked_half_mse(err: &Tensor, valid: &Tensor) -> Tensor {
-    let real = valid.sum(Kind::Float).clamp_min(1.0);
-    (err.square() * valid.unsqueeze(-1)).sum_dim_intlist(0, false, Kind::Float) / real * 0.5
+    let real = valid.sum_dim_intlist(-1, true, Kind::Float).clamp_min(1.0);
+    (err.square() * valid.unsqueeze(-1)).sum_dim_intlist(-2, false, Kind::Float) / real * 0.5
 }
 
 impl Learner {
-    /// Q-values for the E-step, `[M, N, K]`, from critic heads and closed forms.
+    /// Q-values for the E-step, `[.., M, N, K]`, from critic heads and closed forms.
     fn estep_q(&self, critic_q: &Tensor, actions: &Tensor) -> Tensor {
         let columns: Vec<Tensor> = self
             .bound
@@ -87,24 +142,25 @@ impl Learner {
         Tensor::stack(&columns, -1)
     }
 
-    /// One MO-MPO step (critic update, E-step, M-step, duals, target update) on a
-    /// checked batch.
-    pub(super) fn mpo_step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
+    /// One MO-MPO step of every member (critic update, E-step, M-step, duals,
+    /// target update) on its checked batch; all tensors are member-first.
+    pub(super) fn mpo_step(
+        &mut self,
+        batches: &[SnippetBatch],
+    ) -> Result<Vec<LearnerStats>, LearnerError> {
         let start = Instant::now();
-        let batch = batch.to_device(self.device);
-        let (t_len, b) = (batch.len(), batch.batch_size());
+        let p = self.members.count();
+        let (t_len, b) = (batches[0].len(), batches[0].batch_size());
         let n = (t_len + 1) * b;
-        let (observations, preferences) = self.preferences_of(&batch.observations, t_len);
-        let obs_all = observations.reshape([n, self.dims.obs_dim]);
-        let obs_taken = obs_all.narrow(0, 0, t_len * b);
-        let act_taken = batch.actions.flatten(0, 1);
+        let (batch, preferences) = self.stack_batches(batches, t_len)?;
+        let obs_all = batch.observations.reshape([p, n, -1]);
+        let obs_taken = obs_all.narrow(1, 0, t_len * b);
+        let act_taken = batch.actions.flatten(1, 2);
         let heads = self.bound.critic_names.len() as i64;
         let noise = match self.dims.action {
-            ActionKind::Continuous { dim } => Some(self.noise.standard_normal(
-                &[self.cfg.mpo.num_samples, n, dim],
-                self.device,
-                self.step,
-            )?),
+            ActionKind::Continuous { dim } => {
+                Some(self.member_noise(&[self.cfg.mpo.num_samples, n, dim])?)
+            }
             ActionKind::Discrete { .. } => None,
         };
         let Critics::Q {
@@ -118,54 +174,48 @@ impl Learner {
 
         // 1. Policy evaluation with Retrace (C.2).
         let eval = tch::no_grad(|| {
-            let target_out = self.target_policy.forward(&obs_all);
+            let target_out = self.target_policy.forward_members(&obs_all);
             let (samples, critic_q, v_all, log_prior) = match &target_out {
                 PolicyOutput::Gaussian(g) => {
                     let noise = noise
                         .as_ref()
                         .expect("Gaussian policies have continuous actions");
-                    let samples = g.sample_from(noise);
-                    let q = target_critic.forward_samples(&obs_all, &samples);
-                    let v = q.mean_dim(0, false, Kind::Float);
+                    let samples = g.mean.unsqueeze(1) + noise * g.std.unsqueeze(1);
+                    let q = target_critic.forward_samples_members(&obs_all, &samples);
+                    let v = q.mean_dim(1, false, Kind::Float);
                     (samples, q, v, None)
                 }
                 PolicyOutput::Categorical(logits) => {
-                    let q = target_critic.forward_all_actions(&obs_all);
-                    let log_prior = logits.log_softmax(-1, Kind::Float).transpose(0, 1);
+                    let q = target_critic.forward_all_actions_members(&obs_all);
+                    let log_prior = logits.log_softmax(-1, Kind::Float).transpose(1, 2);
                     let v =
-                        (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(0, false, Kind::Float);
-                    let a = logits.size()[1];
+                        (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(1, false, Kind::Float);
+                    let a = logits.size()[2];
                     let all = Tensor::arange(a, (Kind::Int64, self.device))
-                        .unsqueeze(1)
-                        .expand([a, n], false);
+                        .reshape([1, a, 1])
+                        .expand([p, a, n], false);
                     (all, q, v, Some(log_prior))
                 }
             };
-            let v_next = v_all.reshape([t_len + 1, b, heads]).narrow(0, 1, t_len);
+            let v_next = v_all.reshape([p, t_len + 1, b, heads]).narrow(1, 1, t_len);
             let q_taken = target_critic
-                .forward(&obs_taken, &act_taken)
-                .reshape([t_len, b, heads]);
-            let target_log_probs = match &target_out {
-                PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
-                    mean: g.mean.narrow(0, 0, t_len * b),
-                    std: g.std.narrow(0, 0, t_len * b),
-                }),
-                PolicyOutput::Categorical(l) => {
-                    PolicyOutput::Categorical(l.narrow(0, 0, t_len * b))
-                }
-            }
-            .log_prob(&act_taken)
-            .reshape([t_len, b]);
+                .forward_members(&obs_taken, &act_taken)
+                .reshape([p, t_len, b, heads]);
+            let target_log_probs = target_out
+                .narrow_states(t_len * b)
+                .log_prob(&act_taken)
+                .reshape([p, t_len, b]);
             // c = 0 at padding cuts the trace exactly (PAD_LOG_PROB alone leaves ~e^-60).
             let importance =
                 importance_weights(&target_log_probs, &batch.behaviour_log_probs) * &batch.valid;
-            let rewards = self.critic_rewards(&batch.rewards);
+            // Retrace runs along time: members join the batch axis.
+            let time_first = |t: &Tensor| t.transpose(0, 1);
             let targets = retrace_targets(&RetraceInputs {
-                q_taken: &q_taken,
-                v_next: &v_next,
-                rewards: &rewards,
-                discounts: &batch.discounts,
-                importance: &importance,
+                q_taken: &time_first(&q_taken),
+                v_next: &time_first(&v_next),
+                rewards: &time_first(&self.critic_rewards(&batch.rewards)),
+                discounts: &time_first(&batch.discounts),
+                importance: &time_first(&importance),
                 gamma: self.cfg.mpo.discount,
             });
             (
@@ -173,56 +223,68 @@ impl Learner {
                 samples,
                 critic_q,
                 log_prior,
-                targets.reshape([t_len * b, heads]),
+                time_first(&targets).reshape([p, t_len * b, heads]),
             )
         });
         let (target_out, samples, critic_q, log_prior, targets) = eval;
-        let q_online = critic.forward(&obs_taken, &act_taken);
-        let per_head = masked_half_mse(&(q_online - &targets), &batch.valid.reshape([t_len * b]));
+        let q_online = critic.forward_members(&obs_taken, &act_taken);
+        let per_head =
+            masked_half_mse(&(q_online - &targets), &batch.valid.reshape([p, t_len * b]));
         self.update_critics(&per_head.sum(Kind::Float));
         let policy_evaluation_ms = ms_since(start, self.device);
 
         // The E- and M-steps see only real states (all of them, in most batches).
         let real = real_states(&batch.valid, &batch.discounts);
-        let preferences = match (&real, preferences) {
-            (Some(index), Some(p)) => Some(p.rows(index, &self.conditioned_epsilon())),
-            (_, p) => p,
+        let preferences = match (&real.index, preferences) {
+            (Some(index), Some(pr)) => Some(pr.rows(&index.get(0), &self.conditioned_epsilon())),
+            (_, pr) => pr,
         };
-        let (obs_real, target_out, samples, critic_q, log_prior) = match &real {
+        let (obs_real, target_out, samples, critic_q, log_prior) = match &real.index {
             None => (obs_all, target_out, samples, critic_q, log_prior),
             Some(index) => (
-                obs_all.index_select(0, index),
-                target_out.rows(index),
-                samples.index_select(1, index),
-                critic_q.index_select(1, index),
-                log_prior.map(|p| p.index_select(1, index)),
+                gather_states(&obs_all, index, 1),
+                target_out.member_rows(index),
+                gather_states(&samples, index, 2),
+                gather_states(&critic_q, index, 2),
+                log_prior.map(|lp| gather_states(&lp, index, 2)),
             ),
+        };
+        let states = match &preferences {
+            Some(pr) => StateMean::PerGridPoint(&pr.state_weight),
+            None => StateMean::Members(&real.weight),
         };
 
         // 2. E-step (eqs. 32-34).
         let start = Instant::now();
         let q = self.estep_q(&critic_q, &samples);
-        let estep = self.estep(&q, log_prior.as_ref(), preferences.as_ref());
+        let estep = self.estep(&q, log_prior.as_ref(), preferences.as_ref(), states);
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
         let e_step_ms = ms_since(start, self.device);
 
-        // 3. M-step (eqs. 16-20) and dual updates.
+        // 3. M-step (eqs. 16-20) and dual updates. A conditioned learner's M-step
+        // averages over all its states.
         let start = Instant::now();
-        let online_out = self.policy.forward(&obs_real);
+        let online_out = self.policy.forward_members(&obs_real);
+        let fit_states = match preferences {
+            Some(_) => StateMean::Uniform,
+            None => states,
+        };
         let policy_kl = self.fit_policy(
             &online_out,
             &target_out,
             &samples,
             &weights,
             &estep.temperature_loss,
+            fit_states,
         );
         let m_step_ms = ms_since(start, self.device);
 
         // 4. Target networks.
-        self.finish_step(StepMeasures {
+        let value_mean = states.over_states(&q.mean_dim(1, false, Kind::Float));
+        self.finish_members(StepMeasures {
             critic_loss: per_head,
             estep_kl: estep.kl,
-            value_mean: q.mean_dim([0i64, 1].as_slice(), false, Kind::Float),
+            value_mean,
             policy_kl,
             timings: PhaseTimings {
                 policy_evaluation_ms,
@@ -231,6 +293,47 @@ impl Learner {
                 target_update_ms: 0.0,
             },
         })
+    }
+
+    /// The members' batches stacked member-first (on the learner's device), with the
+    /// observations as the step trains on them and, for an ε-conditioned learner (one
+    /// member), each state's grid point.
+    fn stack_batches(
+        &self,
+        batches: &[SnippetBatch],
+        t_len: i64,
+    ) -> Result<(SnippetBatch, Option<StatePreferences>), LearnerError> {
+        let batches: Vec<SnippetBatch> = batches.iter().map(|b| b.to_device(self.device)).collect();
+        let (first_obs, preferences) = self.preferences_of(&batches[0].observations, t_len);
+        let stack = |field: fn(&SnippetBatch) -> &Tensor| {
+            Tensor::stack(&batches.iter().map(field).collect::<Vec<_>>(), 0)
+        };
+        let observations = match preferences {
+            Some(_) => first_obs.unsqueeze(0),
+            None => stack(|b| &b.observations),
+        };
+        Ok((
+            SnippetBatch {
+                observations,
+                actions: stack(|b| &b.actions),
+                rewards: stack(|b| &b.rewards),
+                discounts: stack(|b| &b.discounts),
+                behaviour_log_probs: stack(|b| &b.behaviour_log_probs),
+                valid: stack(|b| &b.valid),
+            },
+            preferences,
+        ))
+    }
+
+    /// Every member's sampling noise of `shape` for this step, `[P, ..shape]`.
+    fn member_noise(&mut self, shape: &[i64]) -> Result<Tensor, LearnerError> {
+        let (device, step) = (self.device, self.step);
+        let draws = self
+            .noise
+            .iter_mut()
+            .map(|source| source.standard_normal(shape, device, step))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Tensor::stack(&draws, 0))
     }
 
     /// The batch's observations `[T+1, B, O]` as the step trains on them, and for an
@@ -265,25 +368,26 @@ impl Learner {
         )
     }
 
-    /// The E-step on `q [M, N, K]` (with `log_prior [A, N]`: exact, categorical), with
-    /// one ε and eta per objective, or each state's grid point's.
+    /// The E-step on `q [P, M, N, K]` (with `log_prior [P, A, N]`: exact, categorical),
+    /// with each member's ε and eta per objective, or (conditioned, one member) each
+    /// state's grid point's.
     fn estep(
         &self,
         q: &Tensor,
         log_prior: Option<&Tensor>,
         preferences: Option<&StatePreferences>,
+        states: StateMean<'_>,
     ) -> EStepOutput {
+        let k = self.bound.objectives.len() as i64;
         let temperature = self.duals.temperature();
-        let (temperature, epsilon, states) = match preferences {
+        let (temperature, epsilon) = match preferences {
             None => (
-                temperature,
-                self.epsilon.shallow_clone(),
-                StateMean::Uniform,
+                temperature.reshape([-1, 1, k]),
+                self.epsilon.reshape([-1, 1, k]),
             ),
             Some(p) => (
-                p.temperature(&temperature.reshape([-1, self.epsilon.size()[0]])),
+                p.temperature(&temperature.reshape([-1, k])),
                 p.epsilon.shallow_clone(),
-                StateMean::PerGridPoint(&p.state_weight),
             ),
         };
         match log_prior {
@@ -313,26 +417,37 @@ impl Learner {
     ) -> (Vec<f32>, Vec<f32>) {
         // Each state is a snippet of length 0: its own grid point.
         let (obs, preferences) = self.preferences_of(&obs.to_device(self.device).unsqueeze(0), 0);
-        let obs = obs.squeeze_dim(0);
-        let target_out = tch::no_grad(|| self.target_policy.forward(&obs));
+        let n = obs.size()[1];
+        let target_out = tch::no_grad(|| self.target_policy.forward_members(&obs));
         let PolicyOutput::Gaussian(target) = &target_out else {
             panic!("improve_policy_with needs a Gaussian policy");
         };
-        let shape = [&[self.cfg.mpo.num_samples][..], &target.mean.size()[..]].concat();
+        let shape = [&[self.cfg.mpo.num_samples][..], &target.mean.size()[1..]].concat();
         let noise = self
             .stream(Purpose::LearnerNoise)
-            .normal(&shape, self.device);
-        let samples = tch::no_grad(|| target.sample_from(&noise));
-        let q = q_fn(&samples);
-        let estep = self.estep(&q, None, preferences.as_ref());
-        let online_out = self.policy.forward(&obs);
+            .normal(&shape, self.device)
+            .unsqueeze(0);
+        let samples = tch::no_grad(|| target.mean.unsqueeze(1) + noise * target.std.unsqueeze(1));
+        let q = q_fn(&samples.squeeze_dim(0)).unsqueeze(0);
+        let uniform = Tensor::full([1, n], 1.0 / n as f64, (Kind::Float, self.device));
+        let states = match &preferences {
+            Some(p) => StateMean::PerGridPoint(&p.state_weight),
+            None => StateMean::Members(&uniform),
+        };
+        let estep = self.estep(&q, None, preferences.as_ref(), states);
+        let online_out = self.policy.forward_members(&obs);
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
+        let fit_states = match preferences {
+            Some(_) => StateMean::Uniform,
+            None => states,
+        };
         let policy_kl = self.fit_policy(
             &online_out,
             &target_out,
             &samples,
             &weights,
             &estep.temperature_loss,
+            fit_states,
         );
         self.advance_targets().expect("same layout");
         (self.duals.values().0, to_vec(&policy_kl))

@@ -31,7 +31,7 @@
 //! actions, K objectives, C critics.
 
 use super::batch::SnippetBatch;
-use super::estep::advantage_estep;
+use super::estep::{StateMean, advantage_estep};
 use super::mompo::masked_half_mse;
 use super::objectives::QSource;
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since};
@@ -227,6 +227,7 @@ impl Learner {
             &actions,
             &weights,
             &estep.temperature_loss,
+            StateMean::Uniform,
         );
         let m_step_ms = ms_since(start, self.device);
 

@@ -20,9 +20,15 @@
 //! Categorical (A.2): `-mean_s sum_a w_a log pi(a|s) + sg(alpha) KL(pi_old || pi)` and
 //! `alpha (beta - sg(KL))`.
 //!
+//! Populations: every tensor may carry leading member axes (`online [P, B, D]`,
+//! `actions [P, M, B, D]`, alpha `[P, 1]` or `[P, D]`); the means over states are
+//! then each member's (`StateMean::Members`), the KLs and multipliers per member, and
+//! the losses the sums of the members' losses.
+//!
 //! Shape legend: M samples (or A actions), B states, D action dims, P multipliers per
-//! trust-region part (1 summed, D per dimension).
+//! trust-region part (1 summed, D per dimension); leading `..` member axes.
 
+use super::estep::StateMean;
 pub use crate::config::KlConstraint;
 use crate::nets::GaussianParams;
 use tch::{Kind, Tensor};
@@ -87,35 +93,54 @@ pub fn gaussian_mstep(
     weights: &Tensor,
     region: &TrustRegion<'_>,
 ) -> GaussianMStepOutput {
+    gaussian_mstep_with(online, target, actions, weights, region, StateMean::Uniform)
+}
+
+/// [`gaussian_mstep`] with leading member axes and each member's mean over its states.
+pub fn gaussian_mstep_with(
+    online: &GaussianParams,
+    target: &GaussianParams,
+    actions: &Tensor,
+    weights: &Tensor,
+    region: &TrustRegion<'_>,
+    states: StateMean<'_>,
+) -> GaussianMStepOutput {
     let target = target.detach();
+    // Against the sample axis of `actions [.., M, B, D]`.
+    let per_sample = |t: &Tensor| t.unsqueeze(-3);
     let fixed_std = GaussianParams {
-        mean: online.mean.shallow_clone(),
-        std: target.std.shallow_clone(),
+        mean: per_sample(&online.mean),
+        std: per_sample(&target.std),
     };
     let fixed_mean = GaussianParams {
-        mean: target.mean.shallow_clone(),
-        std: online.std.shallow_clone(),
+        mean: per_sample(&target.mean),
+        std: per_sample(&online.std),
     };
     let log_lik = fixed_std.log_prob(actions) + fixed_mean.log_prob(actions);
-    let nll = -(weights.detach() * log_lik)
-        .sum_dim_intlist(0, false, Kind::Float)
-        .mean(Kind::Float);
+    let nll = -states
+        .over_state_rows(&(weights.detach() * log_lik).sum_dim_intlist(-2, false, Kind::Float))
+        .sum(Kind::Float);
     let kl = decoupled_kl(online, &target);
     let constrained = |kl: &Tensor| {
-        let over_states = kl.mean_dim(0, false, Kind::Float);
+        let over_states = states.over_states(kl);
         match region.constraint {
-            KlConstraint::Summed => over_states.sum(Kind::Float),
+            KlConstraint::Summed => over_states.sum_dim_intlist(-1, false, Kind::Float),
             KlConstraint::PerDimension => over_states,
         }
     };
     let kl_mean = constrained(&kl.mean);
     let kl_cov = constrained(&kl.cov);
-    // Sums over the multipliers: one term each (summed) or one per dimension.
-    let penalty = (region.alpha_mean.detach() * &kl_mean).sum(Kind::Float)
-        + (region.alpha_cov.detach() * &kl_cov).sum(Kind::Float);
+    // Each multiplier against its KL: one per member (summed) or one per dimension.
+    let against_alpha = |kl: &Tensor| match region.constraint {
+        KlConstraint::Summed => kl.unsqueeze(-1),
+        KlConstraint::PerDimension => kl.shallow_clone(),
+    };
+    let (kl_mu, kl_sigma) = (against_alpha(&kl_mean), against_alpha(&kl_cov));
+    let penalty = (region.alpha_mean.detach() * &kl_mu).sum(Kind::Float)
+        + (region.alpha_cov.detach() * &kl_sigma).sum(Kind::Float);
     let policy_loss = nll + penalty;
-    let alpha_loss = (region.alpha_mean * (region.beta_mean - kl_mean.detach())).sum(Kind::Float)
-        + (region.alpha_cov * (region.beta_cov - kl_cov.detach())).sum(Kind::Float);
+    let alpha_loss = (region.alpha_mean * (region.beta_mean - kl_mu.detach())).sum(Kind::Float)
+        + (region.alpha_cov * (region.beta_cov - kl_sigma.detach())).sum(Kind::Float);
     GaussianMStepOutput {
         policy_loss,
         alpha_loss,
@@ -131,7 +156,7 @@ pub struct CategoricalMStepOutput {
     pub policy_loss: Tensor,
     /// Scalar; gradient to alpha only.
     pub alpha_loss: Tensor,
-    /// Scalar, no gradient: KL(pi_old || pi).
+    /// Scalar (`[P]` for members), no gradient: KL(pi_old || pi).
     pub kl: Tensor,
 }
 
@@ -145,16 +170,42 @@ pub fn categorical_mstep(
     alpha: &Tensor,
     beta: f64,
 ) -> CategoricalMStepOutput {
+    categorical_mstep_with(
+        online_logits,
+        target_logits,
+        weights,
+        alpha,
+        beta,
+        StateMean::Uniform,
+    )
+}
+
+/// [`categorical_mstep`] with leading member axes (`logits [P, B, A]`, `weights
+/// [P, A, B]`, `alpha [P]`) and each member's mean over its states.
+pub fn categorical_mstep_with(
+    online_logits: &Tensor,
+    target_logits: &Tensor,
+    weights: &Tensor,
+    alpha: &Tensor,
+    beta: f64,
+    states: StateMean<'_>,
+) -> CategoricalMStepOutput {
     let log_online = online_logits.log_softmax(-1, Kind::Float);
     let log_target = target_logits.detach().log_softmax(-1, Kind::Float);
-    let nll = -(weights.detach().transpose(0, 1) * &log_online)
-        .sum_dim_intlist(-1, false, Kind::Float)
-        .mean(Kind::Float);
-    let kl = (log_target.exp() * (&log_target - &log_online))
-        .sum_dim_intlist(-1, false, Kind::Float)
-        .mean(Kind::Float);
-    let policy_loss = nll + alpha.detach() * &kl;
-    let alpha_loss = alpha * (beta - kl.detach());
+    let nll = -states
+        .over_state_rows(
+            &(weights.detach().transpose(-2, -1) * &log_online).sum_dim_intlist(
+                -1,
+                false,
+                Kind::Float,
+            ),
+        )
+        .sum(Kind::Float);
+    let kl = states.over_state_rows(
+        &(log_target.exp() * (&log_target - &log_online)).sum_dim_intlist(-1, false, Kind::Float),
+    );
+    let policy_loss = nll + (alpha.detach() * &kl).sum(Kind::Float);
+    let alpha_loss = (alpha * (beta - kl.detach())).sum(Kind::Float);
     CategoricalMStepOutput {
         policy_loss,
         alpha_loss,

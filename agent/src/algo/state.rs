@@ -6,8 +6,16 @@
 //! two families: MO-MPO / scalarized MPO (`mompo.rs`, Q critics with targets) and
 //! MO-V-MPO / scalarized V-MPO (`movmpo.rs`, state-value critics).
 //!
-//! Shape legend: N states, M samples (or A actions), D action dims, K objectives,
-//! C learned critics.
+//! **Populations** (DESIGN.md "Populations"): `Learner::population` trains P members
+//! that share algorithm, architecture, batch and pace and differ in seed, ε or
+//! scalarization weights as one program: parameters, Adam moments, duals and targets
+//! carry a leading member axis (`nets::Members`), the members' losses are summed
+//! before one backward (each member gets exactly its own gradient), and each member
+//! draws from its own random streams. `Learner::new` is a population of one. The
+//! MO-MPO family only; ε-conditioned learners and V-MPO have one member.
+//!
+//! Shape legend: P members, N states, M samples (or A actions), D action dims, K
+//! objectives, C learned critics.
 
 use super::adam::{Adam, AdamConfig};
 use super::batch::{BatchError, SnippetBatch};
@@ -15,12 +23,15 @@ use super::dual::Duals;
 use super::mstep::KlConstraint;
 use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
+use super::population::check_population;
 use super::preferences::{Conditioned, PreferenceGrid};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
+use crate::nets::snapshot::named_member_arrays;
 use crate::nets::{
-    ActOutput, Acting, ActionKind, MultiCritic, Policy, PolicySnapshot, SnapshotError, ValueNet,
+    ActOutput, Acting, ActionKind, Members, MultiCritic, NamedArray, Policy, PolicySnapshot,
+    SnapshotError, ValueNet,
 };
 use crate::random::{Purpose, RandomStream, StreamKey, seeded_init};
 use std::cell::Cell;
@@ -78,6 +89,7 @@ pub(crate) enum Critics {
 }
 
 /// What `Learner::build_networks` makes.
+#[derive(Debug)]
 struct Networks {
     policy_vs: nn::VarStore,
     policy: Policy,
@@ -85,6 +97,33 @@ struct Networks {
     target_policy: Policy,
     critic_vs: nn::VarStore,
     critics: Critics,
+}
+
+impl Networks {
+    /// The online and target stores, in one order for every `Networks`.
+    fn stores(&self) -> Vec<&nn::VarStore> {
+        let mut stores = vec![&self.policy_vs, &self.target_policy_vs, &self.critic_vs];
+        if let Critics::Q { target_vs, .. } = &self.critics {
+            stores.push(target_vs);
+        }
+        stores
+    }
+
+    /// Copies `singles[p]`'s parameters into member p of these stacked networks.
+    fn load_members(&self, singles: &[Networks]) -> Result<(), tch::TchError> {
+        for (p, single) in singles.iter().enumerate() {
+            for (stacked, one) in self.stores().into_iter().zip(single.stores()) {
+                let vars = stacked.variables();
+                for (name, value) in one.variables() {
+                    let slot = vars.get(&name).ok_or_else(|| {
+                        tch::TchError::FileFormat(format!("no stacked variable {name}"))
+                    })?;
+                    tch::no_grad(|| slot.get(p as i64).f_copy_(&value))?;
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Networks, targets, optimizers, duals and the step counter of one learner.
@@ -104,15 +143,17 @@ pub struct Learner {
     pub(crate) policy_opt: Adam,
     pub(crate) critic_opt: Adam,
     pub(crate) duals: Duals,
-    /// `[K]`: epsilon_k of the bound objectives.
+    /// `[K]` (`[P, K]` stacked): epsilon_k of the bound objectives.
     pub(crate) epsilon: Tensor,
-    /// `[K_env, C]`: which reward each critic head learns.
+    /// `[K_env, C]` (`[P, K_env, C]` stacked): which reward each critic head learns.
     pub(crate) critic_reward_weights: Tensor,
     /// The preference grid of an ε-conditioned learner; its temperatures are then
     /// `[G * K]`, grid point by grid point.
     pub(crate) conditioned: Option<Conditioned>,
-    /// Where the sampled actions' noise comes from.
-    pub(crate) noise: NoiseSource,
+    /// Where each member's sampled actions' noise comes from.
+    pub(crate) noise: Vec<NoiseSource>,
+    /// How many members; parameters and duals are stacked when more than one.
+    pub(crate) members: Members,
     /// Sampling `act` calls so far: the counter of the `LearnerActing` stream.
     acts: Cell<u64>,
     pub(crate) step: u64,
@@ -140,11 +181,48 @@ impl Learner {
         dims: LearnerDims,
         device: Device,
     ) -> Result<Self, LearnerError> {
-        let bound = bind_config(&cfg, &dims)?;
+        Self::population(vec![cfg], dims, device)
+    }
+
+    /// A population: one member per config. The configs must agree on everything but
+    /// `seed`, the objectives' ε and the scalarization weights (`population_key`).
+    /// Member p's networks are built as `new` builds them from `cfgs[p]` (same
+    /// parameters, bit for bit), then stacked.
+    pub fn population(
+        cfgs: Vec<LearnerConfig>,
+        dims: LearnerDims,
+        device: Device,
+    ) -> Result<Self, LearnerError> {
+        check_population(&cfgs)?;
+        let members = Members::new(cfgs.len() as i64).expect("checked: at least one member");
+        let cfg = cfgs[0].clone();
+        let bounds = cfgs
+            .iter()
+            .map(|c| bind_config(c, &dims))
+            .collect::<Result<Vec<_>, _>>()?;
+        let bound = bounds[0].clone();
         let settings = cfg.shared();
-        let nets = seeded_init(cfg.seed, || {
-            Self::build_networks(&cfg, &dims, &bound, device)
-        })?;
+        let built = cfgs
+            .iter()
+            .zip(&bounds)
+            .map(|(c, b)| {
+                seeded_init(c.seed, || {
+                    Self::build_networks(c, &dims, b, device, Members::ONE)
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let nets = match members.stacked() {
+            false => built.into_iter().next().expect("one member"),
+            true => {
+                // Built under the lock so that its (overwritten) draws cannot change
+                // another run's initialisation.
+                let stacked = seeded_init(cfg.seed, || {
+                    Self::build_networks(&cfg, &dims, &bound, device, members)
+                })?;
+                stacked.load_members(&built)?;
+                stacked
+            }
+        };
         let Networks {
             policy_vs,
             policy,
@@ -177,26 +255,38 @@ impl Learner {
             ActionKind::Discrete { .. } => vec![vec![settings.init_alpha_categorical]],
         };
         let alpha_parts: Vec<&[f64]> = alphas.iter().map(Vec::as_slice).collect();
-        let duals = Duals::new(
+        let duals = Duals::with_members(
             &temperatures,
             &alpha_parts,
             settings.dual_learning_rate,
             settings.temperature_parameterization,
             device,
+            members,
         );
-        let eps: Vec<f32> = bound.objectives.iter().map(|o| o.epsilon as f32).collect();
-        let epsilon = Tensor::from_slice(&eps).to_device(device);
-        let w: Vec<f32> = bound
-            .critic_reward_weights
+        let eps: Vec<f32> = bounds
             .iter()
-            .flatten()
-            .map(|&w| w as f32)
+            .flat_map(|b| b.objectives.iter().map(|o| o.epsilon as f32))
+            .collect();
+        let k = bound.objectives.len() as i64;
+        let epsilon = Tensor::from_slice(&eps)
+            .reshape(members.shape(&[k]).as_slice())
+            .to_device(device);
+        let w: Vec<f32> = bounds
+            .iter()
+            .flat_map(|b| b.critic_reward_weights.iter().flatten().map(|&w| w as f32))
             .collect();
         let heads = bound.critic_names.len() as i64;
         let critic_reward_weights = Tensor::from_slice(&w)
-            .reshape([dims.reward_names.len() as i64, heads])
+            .reshape(
+                members
+                    .shape(&[dims.reward_names.len() as i64, heads])
+                    .as_slice(),
+            )
             .to_device(device);
-        let noise = NoiseSource::Draw(StreamKey::new(cfg.seed, Purpose::LearnerNoise, 0));
+        let noise = cfgs
+            .iter()
+            .map(|c| NoiseSource::Draw(StreamKey::new(c.seed, Purpose::LearnerNoise, 0)))
+            .collect();
         Ok(Self {
             cfg,
             settings,
@@ -216,6 +306,7 @@ impl Learner {
             critic_reward_weights,
             conditioned,
             noise,
+            members,
             acts: Cell::new(0),
             step: 0,
         })
@@ -228,14 +319,15 @@ impl Learner {
         dims: &LearnerDims,
         bound: &BoundObjectives,
         device: Device,
+        members: Members,
     ) -> Result<Networks, tch::TchError> {
         let net = &cfg.network;
         let heads = bound.critic_names.len() as i64;
         let policy_vs = nn::VarStore::new(device);
-        let policy = Policy::new(&(policy_vs.root() / "policy"), net, dims);
-        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, |vs| {
-            Policy::new(&(vs.root() / "policy"), net, dims)
-        })?;
+        let build_policy =
+            |vs: &nn::VarStore| Policy::with_members(&(vs.root() / "policy"), net, dims, members);
+        let policy = build_policy(&policy_vs);
+        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, build_policy)?;
         let critic_vs = nn::VarStore::new(device);
         let critics = if cfg.algorithm.on_policy() {
             Critics::V {
@@ -243,12 +335,13 @@ impl Learner {
             }
         } else {
             let build = |vs: &nn::VarStore| {
-                MultiCritic::new(
+                MultiCritic::with_members(
                     &(vs.root() / "critic"),
                     net,
                     dims.obs_dim,
                     dims.action,
                     heads,
+                    members,
                 )
             };
             let online = build(&critic_vs);
@@ -302,9 +395,25 @@ impl Learner {
     }
 
     /// Replaces the source of the sampling noise (by default drawn afresh), e.g. with
-    /// given tensors that a reference implementation uses too.
+    /// given tensors that a reference implementation uses too (every member's: one
+    /// source per member).
     pub fn set_noise_source(&mut self, source: NoiseSource) {
-        self.noise = source;
+        self.set_member_noise_sources(vec![source]);
+    }
+
+    /// One noise source per member, in member order (panics on another count).
+    pub fn set_member_noise_sources(&mut self, sources: Vec<NoiseSource>) {
+        assert_eq!(
+            sources.len() as i64,
+            self.members.count(),
+            "one source per member"
+        );
+        self.noise = sources;
+    }
+
+    /// How many members this learner trains.
+    pub fn member_count(&self) -> usize {
+        self.members.count() as usize
     }
 
     /// Learner steps done.
@@ -338,20 +447,86 @@ impl Learner {
 
     /// Copy of the online policy parameters for actors.
     pub fn policy_snapshot(&self) -> PolicySnapshot {
-        PolicySnapshot::from_var_store(&self.policy_vs)
+        self.member_policy_snapshot(0)
     }
 
-    /// One learner step of the configured algorithm on B sequences of T steps.
+    /// Member `member`'s online policy parameters, as one network's.
+    pub fn member_policy_snapshot(&self, member: usize) -> PolicySnapshot {
+        PolicySnapshot {
+            tensors: named_member_arrays(&self.policy_vs, self.members, member as i64),
+        }
+    }
+
+    /// Member `member`'s online policy and critic parameters with one network's names
+    /// and shapes (`parameters` of a learner of one member), sorted by name.
+    pub fn member_parameters(&self, member: usize) -> Vec<NamedArray> {
+        let member = member as i64;
+        let mut params = named_member_arrays(&self.policy_vs, self.members, member);
+        params.extend(named_member_arrays(&self.critic_vs, self.members, member));
+        params
+    }
+
+    /// Member `member`'s duals: eta_k, then every trust-region multiplier.
+    pub fn member_duals(&self, member: usize) -> (Vec<f32>, Vec<f32>) {
+        let pick = |t: &Tensor| to_vec(&self.members.view(t, member as i64, 1));
+        (
+            pick(&self.duals.temperature()),
+            pick(&self.duals.alpha().flatten(-2, -1)),
+        )
+    }
+
+    /// One learner step of the configured algorithm on B sequences of T steps (a
+    /// learner of one member).
     pub fn step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
+        if self.cfg.algorithm.on_policy() {
+            self.check_batch(batch)?;
+            return self.vmpo_step(batch);
+        }
+        let mut stats = self.step_members(std::slice::from_ref(batch))?;
+        Ok(stats.swap_remove(0))
+    }
+
+    /// One learner step of every member on its own batch (all of one shape); the
+    /// statistics in member order.
+    pub fn step_members(
+        &mut self,
+        batches: &[SnippetBatch],
+    ) -> Result<Vec<LearnerStats>, LearnerError> {
+        if batches.len() as i64 != self.members.count() {
+            return Err(BatchError {
+                field: "batches",
+                expected: format!("one per member ({})", self.members.count()),
+                got: batches.len().to_string(),
+            }
+            .into());
+        }
+        for batch in batches {
+            self.check_batch(batch)?;
+            let first = &batches[0];
+            if (batch.len(), batch.batch_size()) != (first.len(), first.batch_size()) {
+                return Err(BatchError {
+                    field: "observations",
+                    expected: format!(
+                        "the first member's T = {}, B = {}",
+                        first.len(),
+                        first.batch_size()
+                    ),
+                    got: format!("T = {}, B = {}", batch.len(), batch.batch_size()),
+                }
+                .into());
+            }
+        }
+        if self.cfg.algorithm.on_policy() {
+            return Ok(vec![self.vmpo_step(&batches[0])?]);
+        }
+        self.mpo_step(batches)
+    }
+
+    fn check_batch(&self, batch: &SnippetBatch) -> Result<(), BatchError> {
         batch.check(
             self.dims.obs_dim,
             self.dims.action,
             self.dims.reward_names.len() as i64,
-        )?;
-        if self.cfg.algorithm.on_policy() {
-            self.vmpo_step(batch)
-        } else {
-            self.mpo_step(batch)
-        }
+        )
     }
 }

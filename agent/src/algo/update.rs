@@ -7,7 +7,8 @@
 //! Shape legend: N states, M samples (or A actions), D action dims, K objectives,
 //! C learned critics.
 
-use super::mstep::{TrustRegion, categorical_mstep, gaussian_mstep};
+use super::estep::StateMean;
+use super::mstep::{TrustRegion, categorical_mstep_with, gaussian_mstep_with};
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
 use crate::nets::PolicyOutput;
 use std::time::Instant;
@@ -29,17 +30,28 @@ pub(crate) struct StepMeasures {
 }
 
 impl Learner {
-    /// Rewards of the critic heads. # Shapes `rewards [T, B, K_env] -> [T, B, C]`.
+    /// Rewards of the critic heads, with each member's map for member-first rewards.
+    /// # Shapes
+    /// `rewards [T, B, K_env] -> [T, B, C]` (one member), `[P, T, B, K_env] -> [P, T, B, C]`.
     pub(crate) fn critic_rewards(&self, rewards: &Tensor) -> Tensor {
-        rewards.matmul(&self.critic_reward_weights)
+        if rewards.dim() == 3 {
+            return rewards.matmul(&self.critic_reward_weights);
+        }
+        let size = rewards.size();
+        let weights = self.critic_reward_weights.reshape([size[0], size[3], -1]);
+        rewards
+            .reshape([size[0], -1, size[3]])
+            .bmm(&weights)
+            .reshape([size[0], size[1], size[2], -1])
     }
 
-    /// One Adam step on the critics for `loss`, clipped as configured.
+    /// One Adam step on the critics for `loss` (the sum of the members' losses),
+    /// clipped as configured (each member's gradient by its own norm).
     pub(crate) fn update_critics(&mut self, loss: &Tensor) {
         self.critic_opt.zero_grad();
         loss.backward();
         if let Some(max) = self.settings.grad_clip_norm {
-            self.critic_opt.clip_grad_norm(max);
+            self.critic_opt.clip_grad_norm_members(max, self.members);
         }
         self.critic_opt.step();
     }
@@ -50,9 +62,10 @@ impl Learner {
     /// per-dimension constraint each part is the mean over the D dimensions' KLs (the
     /// number each beta bounds).
     /// # Shapes
-    /// Gaussian: `actions [M, N, D]`, `weights [M, N]`; categorical: `actions`
-    /// unused, `weights [A, N]`. The loss is `-mean_N sum_M w log pi`, so weights that
-    /// sum to 1 over the batch must come scaled by N.
+    /// Gaussian: `actions [.., M, N, D]`, `weights [.., M, N]`; categorical: `actions`
+    /// unused, `weights [.., A, N]`; leading member axes `..` (each member's mean over
+    /// its states by `states`). The loss is `-mean_N sum_M w log pi`, so weights that
+    /// sum to 1 over the batch must come scaled by N. Returns `[P, parts]`.
     pub(crate) fn fit_policy(
         &mut self,
         online: &PolicyOutput,
@@ -60,13 +73,17 @@ impl Learner {
         actions: &Tensor,
         weights: &Tensor,
         temperature_loss: &Tensor,
+        states: StateMean<'_>,
     ) -> Tensor {
-        // [parts, P]
+        // [.., parts, multipliers per part]
         let alpha = self.duals.alpha();
         let s = self.settings;
+        let p = self.members.count();
+        // One KL per member and part: per-dimension KLs averaged (what each beta bounds).
+        let per_member = |kl: &Tensor| kl.reshape([p, -1]).mean_dim(-1, false, Kind::Float);
         let (policy_loss, alpha_loss, policy_kl) = match (online, target) {
             (PolicyOutput::Gaussian(online), PolicyOutput::Gaussian(target)) => {
-                let (alpha_mean, alpha_cov) = (alpha.get(0), alpha.get(1));
+                let (alpha_mean, alpha_cov) = (alpha.select(-2, 0), alpha.select(-2, 1));
                 let region = TrustRegion {
                     alpha_mean: &alpha_mean,
                     alpha_cov: &alpha_cov,
@@ -74,14 +91,25 @@ impl Learner {
                     beta_cov: s.beta_cov,
                     constraint: s.kl_constraint,
                 };
-                let out = gaussian_mstep(online, target, actions, weights, &region);
-                let parts = [&out.kl_mean, &out.kl_cov].map(|kl| kl.mean(Kind::Float));
-                (out.policy_loss, out.alpha_loss, Tensor::stack(&parts, 0))
+                let out = gaussian_mstep_with(online, target, actions, weights, &region, states);
+                let parts = [&out.kl_mean, &out.kl_cov].map(per_member);
+                (out.policy_loss, out.alpha_loss, Tensor::stack(&parts, -1))
             }
             (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
-                let alpha = alpha.reshape([-1]).get(0);
-                let out = categorical_mstep(online, target, weights, &alpha, s.beta_categorical);
-                (out.policy_loss, out.alpha_loss, out.kl.unsqueeze(0))
+                let alpha = alpha.reshape(online.size()[..online.dim() - 2].to_vec());
+                let out = categorical_mstep_with(
+                    online,
+                    target,
+                    weights,
+                    &alpha,
+                    s.beta_categorical,
+                    states,
+                );
+                (
+                    out.policy_loss,
+                    out.alpha_loss,
+                    per_member(&out.kl).unsqueeze(-1),
+                )
             }
             _ => unreachable!("online and target policies have the same kind"),
         };
@@ -89,7 +117,7 @@ impl Learner {
         self.duals.zero_grad();
         (policy_loss + alpha_loss + temperature_loss).backward();
         if let Some(max) = s.grad_clip_norm {
-            self.policy_opt.clip_grad_norm(max);
+            self.policy_opt.clip_grad_norm_members(max, self.members);
         }
         self.policy_opt.step();
         self.duals.step();
@@ -101,23 +129,61 @@ impl Learner {
         &mut self,
         measured: StepMeasures,
     ) -> Result<LearnerStats, LearnerError> {
+        let mut stats = self.finish_members(measured)?;
+        Ok(stats.swap_remove(0))
+    }
+
+    /// `finish_step` for every member: the measures are member-first (`[P, ..]`), and
+    /// all members' statistics come to the host in one copy.
+    pub(crate) fn finish_members(
+        &mut self,
+        measured: StepMeasures,
+    ) -> Result<Vec<LearnerStats>, LearnerError> {
         let start = Instant::now();
         self.advance_targets()?;
         let target_update_ms = ms_since(start, self.device);
-        let (temperature, alpha) = self.duals.values();
-        Ok(LearnerStats {
-            step: self.step,
-            critic_loss: to_vec(&measured.critic_loss),
-            temperature,
-            estep_kl: to_vec(&measured.estep_kl),
-            q_mean: to_vec(&measured.value_mean),
-            alpha,
-            policy_kl: to_vec(&measured.policy_kl),
-            timings: PhaseTimings {
-                target_update_ms,
-                ..measured.timings
-            },
-        })
+        let p = self.members.count();
+        let alpha = self.duals.alpha();
+        let alpha = alpha.reshape([p, alpha.size()[alpha.dim() - 2], -1]);
+        let columns = [
+            measured.critic_loss.reshape([p, -1]),
+            self.duals.temperature().reshape([p, -1]),
+            measured.estep_kl.reshape([p, -1]),
+            measured.value_mean.reshape([p, -1]),
+            alpha.mean_dim(-1, false, Kind::Float),
+            measured.policy_kl.reshape([p, -1]),
+        ];
+        let widths: Vec<usize> = columns.iter().map(|c| c.size()[1] as usize).collect();
+        let table = to_vec(&Tensor::cat(&columns, 1));
+        let row_len: usize = widths.iter().sum();
+        let timings = PhaseTimings {
+            target_update_ms,
+            ..measured.timings
+        };
+        Ok(table
+            .chunks(row_len.max(1))
+            .take(p as usize)
+            .map(|row| {
+                let mut parts = Vec::with_capacity(widths.len());
+                let mut at = 0;
+                for w in &widths {
+                    parts.push(row[at..at + w].to_vec());
+                    at += w;
+                }
+                let mut parts = parts.into_iter();
+                let mut next = || parts.next().unwrap_or_default();
+                LearnerStats {
+                    step: self.step,
+                    critic_loss: next(),
+                    temperature: next(),
+                    estep_kl: next(),
+                    q_mean: next(),
+                    alpha: next(),
+                    policy_kl: next(),
+                    timings,
+                }
+            })
+            .collect())
     }
 
     /// Counts the step and copies the target networks when due (C.1).

@@ -9,13 +9,19 @@
 //! C heads (`[C, in, out]` stacked weights) run as one batched matmul per layer, so
 //! all learned objectives are evaluated in one pass.
 //!
-//! Shape legend: N states, M actions per state, D action dims, A discrete actions,
-//! C heads (learned objectives).
+//! Population training (`mlp.rs`): with P members the layers are stacked and the
+//! `*_members` passes take and return member-first tensors. Untracked passes over
+//! many rows run a few members at a time on a CPU (`MEMBER_CHUNK_VALUES`), for the
+//! same reason `forward_samples` chunks samples; one member alone runs exactly the
+//! single-network pass.
+//!
+//! Shape legend: P members, N states, M actions per state, D action dims, A discrete
+//! actions, C heads (learned objectives).
 
 use super::ActionKind;
 use super::activation::elu_;
 use super::heads::HeadStack;
-use super::mlp::{Dense, Norm};
+use super::mlp::{Dense, Members, Norm};
 use crate::config::NetworkConfig;
 use tch::{Device, Kind, Tensor, nn};
 
@@ -23,6 +29,13 @@ use tch::{Device, Kind, Tensor, nn};
 /// 500). On the development machine 4608 rows made the humanoid-size step about 10%
 /// faster than one pass over all 92,160 rows, and 9216 or 18,432 rows did not help.
 const CHUNK_ROWS: i64 = 4608;
+
+/// Values per activation (rows x heads x width) that an untracked member chunk may
+/// hold on a CPU. Stacking all members of a Deep Sea Treasure population made the
+/// target critic's pass memory-bound (its activations `[P, C, A N, 128]` fell out of
+/// cache: ELU and the bias add ran 2x slower per value than one member's); 2^18
+/// values (1 MiB) keeps one member's `[2, 1024, 128]` whole.
+const MEMBER_CHUNK_VALUES: i64 = 1 << 18;
 
 /// C critic heads on a shared first layer (and `critic_shared_layers - 1` more).
 #[derive(Debug)]
@@ -35,6 +48,9 @@ pub struct MultiCritic {
     action: ActionKind,
     tanh_action: bool,
     num_heads: i64,
+    members: Members,
+    /// The widest layer (sizes the member chunks of untracked passes).
+    widest: i64,
 }
 
 impl MultiCritic {
@@ -47,28 +63,39 @@ impl MultiCritic {
         action: ActionKind,
         num_heads: i64,
     ) -> Self {
+        Self::with_members(p, cfg, obs_dim, action, num_heads, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        obs_dim: i64,
+        action: ActionKind,
+        num_heads: i64,
+        members: Members,
+    ) -> Self {
         let layers = &cfg.critic_layers;
         let act_dim = action.critic_input_dim();
         let fan_in = obs_dim + act_dim;
         let shared = p / "shared";
-        let obs_layer = Dense::new(&(&shared / "obs"), obs_dim, layers[0], fan_in, true);
-        let action_layer = Dense::new(&(&shared / "action"), act_dim, layers[0], fan_in, false);
-        let norm = Norm::new(&(&shared / "layer_norm"), layers[0]);
+        let dense = |path: &nn::Path, input, output, fan_in, bias| {
+            Dense::with_members(path, input, output, fan_in, bias, members)
+        };
+        let obs_layer = dense(&(&shared / "obs"), obs_dim, layers[0], fan_in, true);
+        let action_layer = dense(&(&shared / "action"), act_dim, layers[0], fan_in, false);
+        let norm = Norm::with_members(&(&shared / "layer_norm"), layers[0], members);
         let n_shared = cfg.critic_shared_layers;
         let shared_hidden = layers[..n_shared]
             .windows(2)
             .enumerate()
             .map(|(i, w)| {
-                Dense::new(
-                    &(&shared / format!("linear_{}", i + 1)),
-                    w[0],
-                    w[1],
-                    w[0],
-                    true,
-                )
+                let path = &shared / format!("linear_{}", i + 1);
+                dense(&path, w[0], w[1], w[0], true)
             })
             .collect();
-        let heads = HeadStack::new(&(p / "heads"), num_heads, &layers[n_shared - 1..]);
+        let heads =
+            HeadStack::with_members(&(p / "heads"), num_heads, &layers[n_shared - 1..], members);
         Self {
             obs_layer,
             action_layer,
@@ -78,6 +105,28 @@ impl MultiCritic {
             action,
             tanh_action: cfg.tanh_on_critic_action,
             num_heads,
+            members,
+            widest: *layers.iter().max().unwrap_or(&1),
+        }
+    }
+
+    /// Members `start..start + len` as a critic of their own (parameter views).
+    fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            obs_layer: self.obs_layer.narrow_members(start, len),
+            action_layer: self.action_layer.narrow_members(start, len),
+            norm: self.norm.narrow_members(start, len),
+            shared_hidden: self
+                .shared_hidden
+                .iter()
+                .map(|d| d.narrow_members(start, len))
+                .collect(),
+            heads: self.heads.narrow_members(start, len),
+            action: self.action,
+            tanh_action: self.tanh_action,
+            num_heads: self.num_heads,
+            members: self.members.narrowed(len),
+            widest: self.widest,
         }
     }
 
@@ -178,6 +227,124 @@ impl MultiCritic {
         let rows = obs.size()[0];
         self.heads_forward(&h.reshape([n * rows, -1]))
             .reshape([n, rows, self.num_heads])
+    }
+
+    /// Further shared layers, then the heads. `[P, R, h1] -> [P, R, C]`.
+    fn heads_forward_members(&self, h: &Tensor) -> Tensor {
+        let mut x = h.shallow_clone();
+        for layer in &self.shared_hidden {
+            x = layer.forward_members(&x);
+            elu_(&mut x);
+        }
+        self.heads.forward_members(&x)
+    }
+
+    /// Q for one action per state, per member.
+    /// # Shapes
+    /// `obs [P, N, obs_dim]`, `actions [P, N, D] f32 | [P, N] i64 -> [P, N, C]`.
+    pub fn forward_members(&self, obs: &Tensor, actions: &Tensor) -> Tensor {
+        if !self.members.stacked() {
+            return self
+                .forward(&obs.squeeze_dim(0), &actions.squeeze_dim(0))
+                .unsqueeze(0);
+        }
+        let mut h = self
+            .action_layer
+            .forward_members(&self.action_features(actions));
+        let _ = h.g_add_(&self.obs_layer.forward_members(obs));
+        self.heads_forward_members(&self.norm.forward_tanh_members(&h))
+    }
+
+    /// Whether a pass on `obs` records gradients (a trainable critic outside
+    /// `no_grad`, or an input that requires them).
+    fn tracks_gradients(&self, obs: &Tensor) -> bool {
+        obs.requires_grad() || (&self.obs_layer.weight * 1.0).requires_grad()
+    }
+
+    /// Runs `pass` on chunks of members and concatenates the results along the
+    /// member axis: all members at once when tracked or off the CPU, else as many as
+    /// keep `rows` rows per member under `MEMBER_CHUNK_VALUES` (at least one; one
+    /// member alone runs the single-network pass).
+    fn by_member_chunks(
+        &self,
+        rows: i64,
+        tracked: bool,
+        device: Device,
+        pass: impl Fn(&MultiCritic, i64, i64) -> Tensor,
+    ) -> Tensor {
+        let p = self.members.count();
+        let per_member = rows * self.num_heads.max(1) * self.widest;
+        if tracked || device != Device::Cpu || p * per_member <= MEMBER_CHUNK_VALUES {
+            return pass(self, 0, p);
+        }
+        let chunk = (MEMBER_CHUNK_VALUES / per_member).max(1);
+        let parts: Vec<Tensor> = (0..p)
+            .step_by(chunk as usize)
+            .map(|start| {
+                let len = chunk.min(p - start);
+                pass(&self.narrow_members(start, len), start, len)
+            })
+            .collect();
+        Tensor::cat(&parts, 0)
+    }
+
+    /// Q for M actions per state, per member.
+    /// # Shapes
+    /// `obs [P, N, obs_dim]`, `actions [P, M, N, D] -> [P, M, N, C]`.
+    pub fn forward_samples_members(&self, obs: &Tensor, actions: &Tensor) -> Tensor {
+        let size = actions.size();
+        let (m, n) = (size[1], size[2]);
+        let tracked = self.tracks_gradients(obs) || actions.requires_grad();
+        self.by_member_chunks(m * n, tracked, obs.device(), |critic, start, len| {
+            let obs = obs.narrow(0, start, len);
+            let actions = actions.narrow(0, start, len);
+            if !critic.members.stacked() {
+                return critic
+                    .forward_samples(&obs.squeeze_dim(0), &actions.squeeze_dim(0))
+                    .unsqueeze(0);
+            }
+            let per_state = critic.obs_layer.forward_members(&obs).unsqueeze(1);
+            let features = critic.action_features(&actions).reshape([len, m * n, -1]);
+            let mut h = critic
+                .action_layer
+                .forward_members(&features)
+                .reshape([len, m, n, -1]);
+            let _ = h.g_add_(&per_state);
+            let h = critic
+                .norm
+                .forward_tanh_members(&h.reshape([len, m * n, -1]));
+            critic
+                .heads_forward_members(&h)
+                .reshape([len, m, n, critic.num_heads])
+        })
+    }
+
+    /// Q for every discrete action, per member (panics for continuous critics).
+    /// # Shapes
+    /// `obs [P, N, obs_dim] -> [P, A, N, C]`.
+    pub fn forward_all_actions_members(&self, obs: &Tensor) -> Tensor {
+        let ActionKind::Discrete { n: a } = self.action else {
+            panic!("forward_all_actions_members needs a discrete action space");
+        };
+        let n = obs.size()[1];
+        let tracked = self.tracks_gradients(obs);
+        self.by_member_chunks(a * n, tracked, obs.device(), |critic, start, len| {
+            let obs = obs.narrow(0, start, len);
+            if !critic.members.stacked() {
+                return critic.forward_all_actions(&obs.squeeze_dim(0)).unsqueeze(0);
+            }
+            // The one-hot rows of all A actions through the action half: W_act^T.
+            let eye = Tensor::eye(a, (Kind::Float, obs.device()))
+                .unsqueeze(0)
+                .expand([len, a, a], false);
+            let per_action = critic.action_layer.forward_members(&eye).unsqueeze(2);
+            let per_state = critic.obs_layer.forward_members(&obs).unsqueeze(1);
+            let h = (per_action + per_state).reshape([len, a * n, -1]);
+            let h = critic.norm.forward_tanh_members(&h);
+            critic
+                .heads_forward_members(&h)
+                .reshape([len, a, n, critic.num_heads])
+        })
     }
 }
 

@@ -17,6 +17,13 @@ struct StackedDense {
 }
 
 impl StackedDense {
+    fn narrow_members(&self, members: Members, start: i64, len: i64) -> Self {
+        Self {
+            weight: members.view(&self.weight, start, len),
+            bias: members.view(&self.bias, start, len),
+        }
+    }
+
     fn new(p: &nn::Path, heads: i64, input: i64, output: i64, members: Members) -> Self {
         let bound = 1.0 / (input as f64).sqrt();
         let init = nn::Init::Uniform {
@@ -67,6 +74,18 @@ impl HeadStack {
             })
             .collect();
         Self { layers, members }
+    }
+
+    /// Members `start..start + len` (views), as `Dense::narrow_members`.
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            layers: self
+                .layers
+                .iter()
+                .map(|l| l.narrow_members(self.members, start, len))
+                .collect(),
+            members: self.members.narrowed(len),
+        }
     }
 
     /// `x [.., 1, R, in] -> [.., C, R]`: the layers, ELU between them.

@@ -41,6 +41,22 @@ impl Members {
         self.0 > 1
     }
 
+    /// Members `start..start + len` of a stacked parameter `t` as a view: stacked
+    /// (`len` >= 2) or one member's unstacked tensor (`len` = 1); `t` itself when
+    /// this is one member.
+    pub(crate) fn view(self, t: &Tensor, start: i64, len: i64) -> Tensor {
+        match (self.stacked(), len) {
+            (false, _) => t.shallow_clone(),
+            (true, 1) => t.get(start),
+            (true, _) => t.narrow(0, start, len),
+        }
+    }
+
+    /// The member count of a view of `len` members of this layer.
+    pub(crate) fn narrowed(self, len: i64) -> Members {
+        if self.stacked() { Members(len) } else { self }
+    }
+
     /// A parameter's shape: `dims`, behind the member axis when stacked.
     pub(crate) fn shape(self, dims: &[i64]) -> Vec<i64> {
         if self.stacked() {
@@ -97,6 +113,16 @@ impl Dense {
         x.linear(&self.weight, self.bias.as_ref())
     }
 
+    /// Members `start..start + len` as a layer of their own (views of the parameters,
+    /// for untracked passes run a few members at a time).
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            weight: self.members.view(&self.weight, start, len),
+            bias: self.bias.as_ref().map(|b| self.members.view(b, start, len)),
+            members: self.members.narrowed(len),
+        }
+    }
+
     /// # Shapes
     /// `[P, R, in] -> [P, R, out]`.
     pub fn forward_members(&self, x: &Tensor) -> Tensor {
@@ -135,6 +161,16 @@ impl Norm {
             bias: p.var("bias", &members.shape(&[dim]), nn::Init::Const(0.0)),
             dim,
             members,
+        }
+    }
+
+    /// Members `start..start + len` (views), as `Dense::narrow_members`.
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            weight: self.members.view(&self.weight, start, len),
+            bias: self.members.view(&self.bias, start, len),
+            dim: self.dim,
+            members: self.members.narrowed(len),
         }
     }
 
@@ -201,6 +237,20 @@ impl LayerNormMlp {
             norm,
             hidden,
             output_dim: *layers.last().unwrap_or(&input),
+        }
+    }
+
+    /// Members `start..start + len` (views), as `Dense::narrow_members`.
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            first: self.first.narrow_members(start, len),
+            norm: self.norm.narrow_members(start, len),
+            hidden: self
+                .hidden
+                .iter()
+                .map(|d| d.narrow_members(start, len))
+                .collect(),
+            output_dim: self.output_dim,
         }
     }
 

@@ -8,7 +8,7 @@
 //!
 //! Shape legend: B states, M samples per state, D action dims, A discrete actions.
 
-use super::mlp::Dense;
+use super::mlp::{Dense, Members};
 use super::torso::Torso;
 use super::{ActionKind, LearnerDims};
 use crate::config::NetworkConfig;
@@ -66,9 +66,20 @@ impl GaussianPolicy {
     /// Parameters under `p` (`torso/..`, `head/..`, and the mocap torso's `encoder/..`,
     /// `latent/..`).
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims, action_dim: i64) -> Self {
-        let torso = Torso::new(p, cfg, dims);
+        Self::with_members(p, cfg, dims, action_dim, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        action_dim: i64,
+        members: Members,
+    ) -> Self {
+        let torso = Torso::with_members(p, cfg, dims, members);
         let last = torso.output_dim();
-        let head = Dense::new(&(p / "head"), last, 2 * action_dim, last, true);
+        let head = Dense::with_members(&(p / "head"), last, 2 * action_dim, last, true, members);
         Self {
             torso,
             head,
@@ -82,7 +93,17 @@ impl GaussianPolicy {
     /// `obs [B, obs_dim]`, latent `noise [B, L]` (mocap torso; `None` draws it)
     /// `-> mean, std [B, D]`.
     pub fn forward(&self, obs: &Tensor, noise: Option<&Tensor>) -> GaussianParams {
-        let out = self.head.forward(&self.torso.forward(obs, noise));
+        self.params(self.head.forward(&self.torso.forward(obs, noise)))
+    }
+
+    /// # Shapes
+    /// `obs [P, B, obs_dim] -> mean, std [P, B, D]`.
+    pub fn forward_members(&self, obs: &Tensor) -> GaussianParams {
+        self.params(self.head.forward_members(&self.torso.forward_members(obs)))
+    }
+
+    /// Mean and std from the head's output `[.., 2 D]`.
+    fn params(&self, out: Tensor) -> GaussianParams {
         let parts = out.split(self.action_dim, -1);
         let mean = if self.tanh_mean {
             parts[0].tanh()
@@ -104,10 +125,26 @@ pub struct CategoricalPolicy {
 impl CategoricalPolicy {
     /// Parameters under `p` (`torso/..`, `head/..`).
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims, num_actions: i64) -> Self {
-        let torso = Torso::new(p, cfg, dims);
+        Self::with_members(p, cfg, dims, num_actions, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        num_actions: i64,
+        members: Members,
+    ) -> Self {
+        let torso = Torso::with_members(p, cfg, dims, members);
         let last = torso.output_dim();
-        let head = Dense::new(&(p / "head"), last, num_actions, last, true);
+        let head = Dense::with_members(&(p / "head"), last, num_actions, last, true, members);
         Self { torso, head }
+    }
+
+    /// # Shapes `obs [P, B, obs_dim] -> [P, B, A]`.
+    pub fn forward_members(&self, obs: &Tensor) -> Tensor {
+        self.head.forward_members(&self.torso.forward_members(obs))
     }
 
     /// Unnormalised log-probabilities. # Shapes `obs [B, obs_dim] -> [B, A]`.
@@ -139,6 +176,30 @@ impl PolicyOutput {
         }
     }
 
+    /// Each member's rows at its own indices (states along axis 1).
+    /// # Shapes `[P, B, ...]`, `index [P, R] i64 -> [P, R, ...]`.
+    pub fn member_rows(&self, index: &Tensor) -> Self {
+        let pick = |t: &Tensor| gather_rows(t, index);
+        match self {
+            PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
+                mean: pick(&g.mean),
+                std: pick(&g.std),
+            }),
+            PolicyOutput::Categorical(logits) => PolicyOutput::Categorical(pick(logits)),
+        }
+    }
+
+    /// The first `len` states of every member (axis 1).
+    pub fn narrow_states(&self, len: i64) -> Self {
+        match self {
+            PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
+                mean: g.mean.narrow(1, 0, len),
+                std: g.std.narrow(1, 0, len),
+            }),
+            PolicyOutput::Categorical(l) => PolicyOutput::Categorical(l.narrow(1, 0, len)),
+        }
+    }
+
     /// Log-probability of taken actions.
     /// # Shapes
     /// Gaussian `[B, D] f32`, categorical `[B] i64` `-> [B]`.
@@ -151,6 +212,18 @@ impl PolicyOutput {
                 .squeeze_dim(-1),
         }
     }
+}
+
+/// Rows of `t [P, B, ...]` at `index [P, R]` along axis 1 `-> [P, R, ...]`.
+pub fn gather_rows(t: &Tensor, index: &Tensor) -> Tensor {
+    let size = t.size();
+    let mut shape = index.size();
+    shape.extend_from_slice(&size[2..]);
+    let mut idx = index.shallow_clone();
+    for _ in 2..size.len() {
+        idx = idx.unsqueeze(-1);
+    }
+    t.gather(1, &idx.expand(shape.as_slice(), false), false)
 }
 
 /// Actions chosen for a batch of states, with the log-probabilities the replay
@@ -184,13 +257,33 @@ pub enum Policy {
 impl Policy {
     /// Builds the policy for `dims.action` under `p`.
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims) -> Self {
+        Self::with_members(p, cfg, dims, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        members: Members,
+    ) -> Self {
         match dims.action {
             ActionKind::Continuous { dim } => {
-                Policy::Gaussian(GaussianPolicy::new(p, cfg, dims, dim))
+                Policy::Gaussian(GaussianPolicy::with_members(p, cfg, dims, dim, members))
             }
             ActionKind::Discrete { n } => {
-                Policy::Categorical(CategoricalPolicy::new(p, cfg, dims, n))
+                Policy::Categorical(CategoricalPolicy::with_members(p, cfg, dims, n, members))
             }
+        }
+    }
+
+    /// Every member's distribution on its own states.
+    /// # Shapes
+    /// `obs [P, B, obs_dim] -> [P, B, D]` (mean, std) or `[P, B, A]` (logits).
+    pub fn forward_members(&self, obs: &Tensor) -> PolicyOutput {
+        match self {
+            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward_members(obs)),
+            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward_members(obs)),
         }
     }
 

@@ -3,6 +3,7 @@
 //! named arrays carry any network's parameters in and out (`named_arrays`, `load_named`).
 
 use super::LearnerDims;
+use super::mlp::Members;
 use super::policy::{ActOutput, Acting, Policy};
 use crate::config::NetworkConfig;
 use crate::random::seeded_init;
@@ -67,11 +68,18 @@ impl PolicySnapshot {
 
 /// Every variable of `vs` as host data, sorted by name.
 pub fn named_arrays(vs: &nn::VarStore) -> Vec<NamedArray> {
+    named_member_arrays(vs, Members::ONE, 0)
+}
+
+/// Member `member`'s slice of every variable of `vs` (a layer store of `members`
+/// members), with one network's names and shapes, sorted by name.
+pub fn named_member_arrays(vs: &nn::VarStore, members: Members, member: i64) -> Vec<NamedArray> {
     let mut tensors: Vec<NamedArray> = vs
         .variables()
         .into_iter()
         .map(|(name, t)| {
-            let t = t
+            let t = members
+                .view(&t, member, 1)
                 .detach()
                 .to_device(Device::Cpu)
                 .to_kind(Kind::Float)

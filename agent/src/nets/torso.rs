@@ -13,7 +13,7 @@
 //! Shape legend: B states, O observation size, P proprioceptive size, L latent size.
 
 use super::LearnerDims;
-use super::mlp::{Dense, LayerNormMlp};
+use super::mlp::{Dense, LayerNormMlp, Members};
 use crate::config::{Architecture, NetworkConfig};
 use tch::{Kind, Tensor, nn};
 
@@ -58,17 +58,30 @@ impl Torso {
     /// Panics for a mocap architecture on an observation without both reference and
     /// proprioceptive leaves; `algo::objectives::bind_config` rejects such configs first.
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims) -> Self {
+        Self::with_members(p, cfg, dims, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks. Panics for a stacked mocap torso: populations
+    /// have plain torsos (`LearnerConfig::validate_population` says so first).
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        members: Members,
+    ) -> Self {
         match &cfg.architecture {
-            Architecture::Mlp => Torso::Mlp(LayerNormMlp::new(
+            Architecture::Mlp => Torso::Mlp(LayerNormMlp::with_members(
                 &(p / "torso"),
                 dims.obs_dim,
                 &cfg.policy_layers,
+                members,
             )),
             Architecture::Mocap {
                 encoder_layers,
                 latent_dim,
                 reference_match,
             } => {
+                assert!(!members.stacked(), "a mocap torso has one member");
                 let split = dims.split_observation(reference_match);
                 assert!(
                     !split.matching.is_empty() && !split.rest.is_empty(),
@@ -122,6 +135,18 @@ impl Torso {
                     &Tensor::zeros([obs.size()[0], m.latent_dim], (Kind::Float, obs.device())),
                 ),
             },
+        }
+    }
+}
+
+impl Torso {
+    /// # Shapes
+    /// `obs [P, B, O] -> [P, B, F]` (plain torsos; one member's mocap torso with its
+    /// latent mean).
+    pub fn forward_members(&self, obs: &Tensor) -> Tensor {
+        match self {
+            Torso::Mlp(m) => m.forward_members(obs),
+            Torso::Mocap(_) => self.forward(&obs.squeeze_dim(0), None).unsqueeze(0),
         }
     }
 }
