@@ -1,238 +1,241 @@
-//! The network part of a learner step for P members: stacked (one batched program,
-//! `nets` member axis) against P separate single networks, at Deep Sea Treasure's
-//! sizes (issue 22's go/no-go measurement, research/population.md step 1).
+//! Whole learner steps of a population (issue 22): P members of a shipped preset
+//! trained as one batched program (`Learner::population`) against P single learners
+//! (`Learner::new`, one after the other), at Deep Sea Treasure's, the pendulum
+//! preset's and humanoid run's sizes (`configs/mompo/{dst,pendulum,humanoid-run}.toml`:
+//! networks, batch, T, M as shipped). Members differ in seed and ε as a sweep's do.
 //!
-//! Per member, as the categorical MO-MPO step does it: obs 2, A = 4 actions,
-//! B = 128 snippets of T = 1 (N = 256 states, 128 taken pairs), policy (64, 64) and
-//! critic (128, 128) with C = 2 heads on a shared first layer:
-//! - target critic, untracked, on all A actions of the N states;
-//! - target policy, untracked, on the N states;
-//! - online critic forward + backward on the 128 taken pairs (squared error);
-//! - online policy forward + backward on the N states (weighted log-likelihood);
-//! - one Adam step on each network (the learner's own `algo::adam::Adam`).
+//! Each member gets its own fixed random batch (real observations need no env: the
+//! step's cost does not depend on their values). Each round times `--steps` population
+//! steps, then the same number of steps of each single learner; a round's two figures
+//! see the same machine, so the ratio is the median of the per-round ratios (a shared
+//! VM's speed drifts within a minute). Prints, per size and P: t(P) total and per
+//! member, t(P) / t(1), the P singles' time and singles / population, and the fit
+//! t(P) = F + m P (least squares over the sizes run): F is what a population shares,
+//! m what each member adds.
 //!
-//! The critic here reads `[obs, one_hot(a)]` through one first layer (the learner's
-//! critic splits that layer to share the observation half); the E-step, Retrace
-//! and duals are not included: this measures what batching the networks saves.
-//!
-//! Each round times `--steps` stacked steps, then as many of the P singles in turn,
-//! on one thread; the ratio is the median over rounds of the per-round ratios (the
-//! machine's speed drifts within a minute, a round's two figures see the same one).
-//!
-//! Run: `cargo bench -p agent --bench population_step [-- --sizes 1,2,6,16,39 --steps 10 --rounds 7 --scale 1]`
-//! (`--scale 64`: 4 states and 2 pairs per member, the fixed cost alone).
+//! Run: `cargo bench -p agent --bench population_step [-- --task dst|pendulum|humanoid|all
+//! --sizes 1,2,6,16,39 --steps 10 --rounds 5 --threads 1 --device cpu|cuda]`.
+//! Defaults: all three tasks; sizes 1,2,6,16,39 (humanoid 1,2,8, with 1 step in 2
+//! rounds on a CPU); one thread; the CPU.
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
-use agent::algo::adam::{Adam, AdamConfig};
-use agent::nets::Members;
-use agent::nets::heads::HeadStack;
-use agent::nets::mlp::{Dense, LayerNormMlp};
+mod common;
+
+use agent::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::config::LearnerConfig;
+use agent::nets::ActionKind;
+use agent::random::{Purpose, StreamKey};
+use agent::run_config::TrainConfig;
+use std::path::Path;
 use std::time::Instant;
-use tch::{Device, Kind, Tensor, nn};
+use tch::{Device, Kind, Tensor};
 
-const OBS: i64 = 2;
-const ACTIONS: i64 = 4;
-/// DST's N = (T + 1) B states and T B taken pairs; `--scale` divides both, so that a
-/// tiny batch shows the step's fixed cost (dispatch, autograd, Adam) alone.
-const STATES: i64 = 256;
-const PAIRS: i64 = 128;
-const HEADS: i64 = 2;
-
-/// Online and target copies of one network of `members` members, with its Adam.
-struct Networks {
-    _vs: nn::VarStore,
-    _target_vs: nn::VarStore,
-    critic: (LayerNormMlp, HeadStack),
-    target_critic: (LayerNormMlp, HeadStack),
-    policy: (LayerNormMlp, Dense),
-    target_policy: (LayerNormMlp, Dense),
-    adam: Adam,
+struct Task {
+    name: &'static str,
+    preset: &'static str,
+    dims: LearnerDims,
+    default_sizes: Vec<i64>,
 }
 
-fn build_critic(p: &nn::Path, m: Members) -> (LayerNormMlp, HeadStack) {
-    (
-        LayerNormMlp::with_members(&(p / "critic"), OBS + ACTIONS, &[128], m),
-        HeadStack::with_members(&(p / "heads"), HEADS, &[128, 128], m),
-    )
+fn tasks() -> Vec<Task> {
+    let dims = |obs_dim, action, rewards: [&str; 2]| LearnerDims {
+        action_bounds: None,
+        obs_dim,
+        action,
+        reward_names: rewards.iter().map(|r| r.to_string()).collect(),
+        obs_leaves: Vec::new(),
+    };
+    vec![
+        Task {
+            name: "dst",
+            preset: "configs/mompo/dst.toml",
+            dims: dims(2, ActionKind::Discrete { n: 4 }, ["time", "treasure"]),
+            default_sizes: vec![1, 2, 6, 16, 39],
+        },
+        Task {
+            name: "pendulum",
+            preset: "configs/mompo/pendulum.toml",
+            dims: dims(3, ActionKind::Continuous { dim: 1 }, ["task", "action_norm"]),
+            default_sizes: vec![1, 2, 6, 16, 39],
+        },
+        Task {
+            name: "humanoid",
+            preset: "configs/mompo/humanoid-run.toml",
+            dims: dims(67, ActionKind::Continuous { dim: 21 }, ["task", "action_norm"]),
+            default_sizes: vec![1, 2, 8],
+        },
+    ]
 }
 
-fn build_policy(p: &nn::Path, m: Members) -> (LayerNormMlp, Dense) {
-    (
-        LayerNormMlp::with_members(&(p / "policy"), OBS, &[64, 64], m),
-        Dense::with_members(&(p / "logits"), 64, ACTIONS, 64, true, m),
-    )
+/// The preset's learner with member `p`'s seed and a distinct first ε.
+fn member(base: &LearnerConfig, p: i64) -> LearnerConfig {
+    let mut cfg = base.clone();
+    cfg.seed = p as u64;
+    if let Some(o) = cfg.objectives.first_mut() {
+        o.epsilon *= 1.0 + 0.1 * p as f64;
+    }
+    cfg
 }
 
-impl Networks {
-    fn new(members: Members) -> Self {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let mut target_vs = nn::VarStore::new(Device::Cpu);
-        let (critic, policy) = (
-            build_critic(&vs.root(), members),
-            build_policy(&vs.root(), members),
-        );
-        let target_critic = build_critic(&target_vs.root(), members);
-        let target_policy = build_policy(&target_vs.root(), members);
-        target_vs.copy(&vs).expect("same layout");
-        target_vs.freeze();
-        let adam = Adam::for_var_store(&vs, AdamConfig::new(3e-4, 1e-3));
-        Self {
-            _vs: vs,
-            _target_vs: target_vs,
-            critic,
-            target_critic,
-            policy,
-            target_policy,
-            adam,
+/// A fixed random batch for `learner` from member `p`'s stream.
+fn batch(learner: &Learner, p: i64, device: Device) -> SnippetBatch {
+    let s = learner.settings();
+    let (t, b) = (s.sequence_length as i64, s.batch_size as i64);
+    let dims = learner.dims();
+    let mut r = StreamKey::new(p as u64, Purpose::Replay, 1).at(0);
+    let actions = match dims.action {
+        ActionKind::Continuous { dim } => r.normal(&[t, b, dim], device),
+        ActionKind::Discrete { n } => (r.uniform(&[t, b], device) * n as f64)
+            .floor()
+            .to_kind(Kind::Int64),
+    };
+    let ones = Tensor::ones([t, b], (Kind::Float, device));
+    SnippetBatch {
+        observations: r.normal(&[t + 1, b, dims.obs_dim], device),
+        actions,
+        rewards: r.normal(&[t, b, dims.reward_names.len() as i64], device),
+        discounts: ones.copy(),
+        behaviour_log_probs: r.uniform(&[t, b], device) * -2.0,
+        valid: ones,
+    }
+}
+
+/// Seconds per step of `steps` population steps.
+fn time_population(learner: &mut Learner, batches: &[SnippetBatch], steps: usize) -> f64 {
+    let start = Instant::now();
+    for _ in 0..steps {
+        learner.step_members(batches).expect("population step");
+    }
+    agent::device::synchronize(learner.device());
+    start.elapsed().as_secs_f64() / steps as f64
+}
+
+/// Seconds per step (all P singles stepped once) of `steps` such rounds.
+fn time_singles(singles: &mut [Learner], batches: &[SnippetBatch], steps: usize) -> f64 {
+    let start = Instant::now();
+    for _ in 0..steps {
+        for (learner, batch) in singles.iter_mut().zip(batches) {
+            learner.step(batch).expect("single step");
         }
     }
+    if let Some(l) = singles.first() {
+        agent::device::synchronize(l.device());
+    }
+    start.elapsed().as_secs_f64() / steps as f64
+}
 
-    /// One step on member-first inputs: `obs [P, N, O]`, `pairs [P, R, O + A]`,
-    /// `all [P, A N, O + A]`, `targets [P, R, C]`, `weights [P, N, A]`.
-    fn step(&mut self, input: &Inputs) {
-        tch::no_grad(|| {
-            let (torso, heads) = &self.target_critic;
-            let _q_all = heads.forward_members(&torso.forward_members(&input.all));
-            let (torso, logits) = &self.target_policy;
-            let _prior = logits.forward_members(&torso.forward_members(&input.obs));
+struct Row {
+    p: i64,
+    population_ms: f64,
+    singles_ms: f64,
+    ratio: f64,
+}
+
+fn run_task(task: &Task, sizes: &[i64], device: Device) -> Vec<Row> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let base = TrainConfig::load(&root.join(task.preset))
+        .expect("shipped preset loads")
+        .learner;
+    let cpu_humanoid = task.name == "humanoid" && device == Device::Cpu;
+    let steps: usize = common::arg("--steps", if cpu_humanoid { 1 } else { 10 });
+    let rounds: usize = common::arg("--rounds", if cpu_humanoid { 2 } else { 5 });
+    let mut rows = Vec::new();
+    for &p in sizes {
+        let cfgs: Vec<LearnerConfig> = (0..p).map(|i| member(&base, i)).collect();
+        let mut population =
+            Learner::population(cfgs.clone(), task.dims.clone(), device).expect("population");
+        let mut singles: Vec<Learner> = cfgs
+            .into_iter()
+            .map(|c| Learner::new(c, task.dims.clone(), device).expect("single"))
+            .collect();
+        let batches: Vec<SnippetBatch> = (0..p).map(|i| batch(&population, i, device)).collect();
+        // Warm-up: allocator, MKL and (on a GPU) kernel selection.
+        time_population(&mut population, &batches, 2);
+        time_singles(&mut singles, &batches, 2);
+        let (mut pop, mut sing, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..rounds {
+            let a = time_population(&mut population, &batches, steps);
+            let b = time_singles(&mut singles, &batches, steps);
+            pop.push(a);
+            sing.push(b);
+            ratios.push(b / a);
+        }
+        rows.push(Row {
+            p,
+            population_ms: common::median(pop) * 1e3,
+            singles_ms: common::median(sing) * 1e3,
+            ratio: common::median(ratios),
         });
-        let (torso, heads) = &self.critic;
-        let q = heads.forward_members(&torso.forward_members(&input.pairs));
-        let critic_loss = (q - &input.targets).square().mean(Kind::Float);
-        let (torso, logits) = &self.policy;
-        let log_pi = logits
-            .forward_members(&torso.forward_members(&input.obs))
-            .log_softmax(-1, Kind::Float);
-        let policy_loss = -(log_pi * &input.weights).sum(Kind::Float) / input.states as f64;
-        self.adam.zero_grad();
-        (critic_loss + policy_loss).backward();
-        self.adam.step();
+        let last = rows.last().expect("pushed");
+        eprintln!(
+            "  {} P = {p}: population {:.2} ms, singles {:.2} ms",
+            task.name, last.population_ms, last.singles_ms
+        );
     }
+    rows
 }
 
-struct Inputs {
-    states: i64,
-    obs: Tensor,
-    pairs: Tensor,
-    all: Tensor,
-    targets: Tensor,
-    weights: Tensor,
-}
-
-impl Inputs {
-    fn new(p: i64, scale: i64) -> Self {
-        let opts = (Kind::Float, Device::Cpu);
-        let (states, pairs) = (STATES / scale, PAIRS / scale);
-        Self {
-            states,
-            obs: Tensor::randn([p, states, OBS], opts),
-            pairs: Tensor::randn([p, pairs, OBS + ACTIONS], opts),
-            all: Tensor::randn([p, ACTIONS * states, OBS + ACTIONS], opts),
-            targets: Tensor::randn([p, pairs, HEADS], opts),
-            weights: Tensor::rand([p, states, ACTIONS], opts),
-        }
+/// Least-squares `t = F + m P` over the rows.
+fn fit(rows: &[Row]) -> Option<(f64, f64)> {
+    let n = rows.len() as f64;
+    if rows.len() < 2 {
+        return None;
     }
-
-    /// Member `i`'s slice, still member-first (`[1, ..]`).
-    fn member(&self, i: i64) -> Self {
-        let slice = |t: &Tensor| t.narrow(0, i, 1).contiguous();
-        Self {
-            states: self.states,
-            obs: slice(&self.obs),
-            pairs: slice(&self.pairs),
-            all: slice(&self.all),
-            targets: slice(&self.targets),
-            weights: slice(&self.weights),
-        }
+    let (sp, st): (f64, f64) = rows
+        .iter()
+        .fold((0.0, 0.0), |(a, b), r| (a + r.p as f64, b + r.population_ms));
+    let (mp, mt) = (sp / n, st / n);
+    let (mut cov, mut var) = (0.0, 0.0);
+    for r in rows {
+        cov += (r.p as f64 - mp) * (r.population_ms - mt);
+        var += (r.p as f64 - mp).powi(2);
     }
-}
-
-/// Multiply-adds of one member's step at `states` states and `pairs` pairs, forward
-/// passes once, the two trained passes three times (forward, and backward's two
-/// products per layer): critic first layer (O + A) x 128 and per head 128 x 128 +
-/// 128 x 1; policy O x 64 + 64 x 64 + 64 x A. At DST's 256 / 128 that is
-/// 34.6M (target critic on 1024 rows) + 1.15M (target policy) + 3 x 4.3M (critic)
-/// + 3 x 1.15M (policy) = 52M multiply-adds, 104 MFLOP.
-fn flops_per_member(states: i64, pairs: i64) -> f64 {
-    let critic_row = (OBS + ACTIONS) * 128 + HEADS * (128 * 128 + 128);
-    let policy_row = OBS * 64 + 64 * 64 + 64 * ACTIONS;
-    let macs = ACTIONS * states * critic_row
-        + states * policy_row
-        + 3 * pairs * critic_row
-        + 3 * states * policy_row;
-    2.0 * macs as f64
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-fn arg(name: &str) -> Option<String> {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1).cloned())
+    let m = cov / var;
+    Some((mt - m * mp, m))
 }
 
 fn main() {
-    tch::set_num_threads(1);
-    tch::manual_seed(0);
-    let sizes: Vec<i64> = arg("--sizes")
-        .unwrap_or_else(|| "1,2,6,16,39".into())
-        .split(',')
-        .map(|s| s.parse().expect("--sizes: comma-separated member counts"))
-        .collect();
-    let steps: usize = arg("--steps").map_or(10, |s| s.parse().expect("--steps: a count"));
-    let rounds: usize = arg("--rounds").map_or(7, |s| s.parse().expect("--rounds: a count"));
-    let scale: i64 = arg("--scale").map_or(1, |s| s.parse().expect("--scale: a divisor of 128"));
-    println!(
-        "population_step: DST-size networks, {} states per member, one thread, {rounds} rounds of {steps} steps",
-        STATES / scale
-    );
-    let flops = flops_per_member(STATES / scale, PAIRS / scale);
-    println!("{:.1} MFLOP per member step (GEMMs only)", flops / 1e6);
-    println!(
-        "{:>4} {:>12} {:>12} {:>14} {:>12} {:>10} {:>10}",
-        "P", "stacked ms", "t(P)/t(1)", "per member ms", "P singles ms", "speedup", "GFLOP/s"
-    );
-    let mut t1 = None;
-    for &p in &sizes {
-        let members = Members::new(p).expect("member counts are >= 1");
-        let mut stacked = Networks::new(members);
-        let mut singles: Vec<Networks> = (0..p).map(|_| Networks::new(Members::ONE)).collect();
-        let input = Inputs::new(p, scale);
-        let parts: Vec<Inputs> = (0..p).map(|i| input.member(i)).collect();
-        stacked.step(&input);
-        for (net, part) in singles.iter_mut().zip(&parts) {
-            net.step(part);
+    let threads: i32 = common::arg("--threads", 1);
+    tch::set_num_threads(threads);
+    let device = match common::arg("--device", "cpu".to_string()).as_str() {
+        "cuda" => Device::Cuda(0),
+        _ => Device::Cpu,
+    };
+    let which: String = common::arg("--task", "all".to_string());
+    let sizes_arg: String = common::arg("--sizes", String::new());
+    let mut report = Vec::new();
+    for task in tasks() {
+        if which != "all" && which != task.name {
+            continue;
         }
-        let (mut stacked_ms, mut singles_ms, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
-        for _ in 0..rounds {
-            let start = Instant::now();
-            for _ in 0..steps {
-                stacked.step(&input);
-            }
-            let a = start.elapsed().as_secs_f64() * 1e3 / steps as f64;
-            let start = Instant::now();
-            for _ in 0..steps {
-                for (net, part) in singles.iter_mut().zip(&parts) {
-                    net.step(part);
-                }
-            }
-            let b = start.elapsed().as_secs_f64() * 1e3 / steps as f64;
-            stacked_ms.push(a);
-            singles_ms.push(b);
-            ratios.push(b / a);
+        let sizes: Vec<i64> = if sizes_arg.is_empty() || task.name == "humanoid" {
+            task.default_sizes.clone()
+        } else {
+            sizes_arg.split(',').map(|s| s.trim().parse().expect("--sizes")).collect()
+        };
+        eprintln!("{} ({}):", task.name, task.preset);
+        let rows = run_task(&task, &sizes, device);
+        report.push((task, rows));
+    }
+    println!("population_step: device {device:?}, {threads} thread(s)");
+    for (task, rows) in &report {
+        println!("\n{} ({})", task.name, task.preset);
+        println!("| P | population ms | per member ms | t(P) / t(1) | P singles ms | singles / population |");
+        println!("|---|---|---|---|---|---|");
+        let t1 = rows.first().map_or(f64::NAN, |r| r.population_ms);
+        for r in rows {
+            println!(
+                "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                r.p,
+                r.population_ms,
+                r.population_ms / r.p as f64,
+                r.population_ms / t1,
+                r.singles_ms,
+                r.ratio
+            );
         }
-        let (a, b) = (median(stacked_ms), median(singles_ms));
-        let base = *t1.get_or_insert(a);
-        println!(
-            "{p:>4} {a:>12.2} {:>12.2} {:>14.3} {b:>12.2} {:>9.2}x {:>10.1}",
-            a / base,
-            a / p as f64,
-            median(ratios),
-            flops * p as f64 / (a * 1e6)
-        );
+        if let Some((f, m)) = fit(rows) {
+            println!("fit t(P) = F + m P: F = {f:.2} ms shared, m = {m:.2} ms per member");
+        }
     }
 }
