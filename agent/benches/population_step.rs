@@ -55,13 +55,21 @@ fn tasks() -> Vec<Task> {
         Task {
             name: "pendulum",
             preset: "configs/mompo/pendulum.toml",
-            dims: dims(3, ActionKind::Continuous { dim: 1 }, ["task", "action_norm"]),
+            dims: dims(
+                3,
+                ActionKind::Continuous { dim: 1 },
+                ["task", "action_norm"],
+            ),
             default_sizes: vec![1, 2, 6, 16, 39],
         },
         Task {
             name: "humanoid",
             preset: "configs/mompo/humanoid-run.toml",
-            dims: dims(67, ActionKind::Continuous { dim: 21 }, ["task", "action_norm"]),
+            dims: dims(
+                67,
+                ActionKind::Continuous { dim: 21 },
+                ["task", "action_norm"],
+            ),
             default_sizes: vec![1, 2, 8],
         },
     ]
@@ -181,9 +189,9 @@ fn fit(rows: &[Row]) -> Option<(f64, f64)> {
     if rows.len() < 2 {
         return None;
     }
-    let (sp, st): (f64, f64) = rows
-        .iter()
-        .fold((0.0, 0.0), |(a, b), r| (a + r.p as f64, b + r.population_ms));
+    let (sp, st): (f64, f64) = rows.iter().fold((0.0, 0.0), |(a, b), r| {
+        (a + r.p as f64, b + r.population_ms)
+    });
     let (mp, mt) = (sp / n, st / n);
     let (mut cov, mut var) = (0.0, 0.0);
     for r in rows {
@@ -211,7 +219,10 @@ fn main() {
         let sizes: Vec<i64> = if sizes_arg.is_empty() || task.name == "humanoid" {
             task.default_sizes.clone()
         } else {
-            sizes_arg.split(',').map(|s| s.trim().parse().expect("--sizes")).collect()
+            sizes_arg
+                .split(',')
+                .map(|s| s.trim().parse().expect("--sizes"))
+                .collect()
         };
         eprintln!("{} ({}):", task.name, task.preset);
         let rows = run_task(&task, &sizes, device);
@@ -220,7 +231,9 @@ fn main() {
     println!("population_step: device {device:?}, {threads} thread(s)");
     for (task, rows) in &report {
         println!("\n{} ({})", task.name, task.preset);
-        println!("| P | population ms | per member ms | t(P) / t(1) | P singles ms | singles / population |");
+        println!(
+            "| P | population ms | per member ms | t(P) / t(1) | P singles ms | singles / population |"
+        );
         println!("|---|---|---|---|---|---|");
         let t1 = rows.first().map_or(f64::NAN, |r| r.population_ms);
         for r in rows {

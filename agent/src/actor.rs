@@ -7,6 +7,14 @@
 //! finite Box, e.g. [-2, 2] for Pendulum. A session lost to a server restart is
 //! made again and the run continues; when its server stays away, the session is made
 //! on another server the pool's entries list now ([`ServerPool`]).
+//!
+//! **Populations**: one actor serves the P members of a population learner with one
+//! session of P x B instances, stepped by one call: member p owns instances
+//! pB..(p+1)B, seeded as its own run's would be (per-instance reset seeds), acts on
+//! them with its own policy and sampling stream, and its snippets, episodes and counts
+//! go to its own run (schedule, replay, episodes.csv). Every member gets the same env
+//! steps. A member whose run has stopped (solved with `stop_on_solve`) is still
+//! stepped, as its instances are part of the session, but records nothing more.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -24,8 +32,33 @@ use crate::nets::{Acting, ActionBounds, ActorPolicy, PolicySnapshot};
 use crate::random::StreamKey;
 use crate::replay::SnippetLayout;
 use crate::replay::adder::{AdderStep, SnippetAdder};
-use crate::schedule::{ActorStep, Schedule};
+use crate::schedule::{ActorStep, Schedule, wait_for_population_learner};
 use crate::spec::Space;
+
+/// One member's part of an actor (a single run is a population of one).
+#[derive(Debug)]
+pub struct ActorMember {
+    /// The member's acting policy (parameters arrive through `params`).
+    pub policy: ActorPolicy,
+    /// The member's sampling stream (`random::Purpose::Acting`, index = actor number);
+    /// its counter is the actor's step number.
+    pub sampling: StreamKey,
+    /// Seed of the member's first instance in the actor's first session (`seed +
+    /// 1000 a`); instance j gets `+ j`.
+    pub first_seed: u64,
+    /// Seeds of sessions made after act 0 (`random::Purpose::EnvSeeds`): a resumed
+    /// run's envs continue with new episodes instead of repeating its first ones.
+    pub env_seeds: StreamKey,
+    /// Latest published policy parameters.
+    pub params: watch::Receiver<Arc<PolicySnapshot>>,
+    /// The member's rate limiter and replay.
+    pub schedule: Arc<Schedule>,
+    /// The member's episode log.
+    pub files: Arc<RunFiles>,
+    /// ε-conditioned runs: the grid every episode draws its preference from, and the
+    /// actor's stream for those draws (`random::Purpose::ActingPreference`).
+    pub preferences: Option<(Arc<PreferenceGrid>, StreamKey)>,
+}
 
 /// What one actor needs.
 #[derive(Debug)]
@@ -36,31 +69,17 @@ pub struct ActorContext {
     pub server: Assignment,
     /// The run's servers, asked for another when this actor's server is lost.
     pub servers: Arc<ServerPool>,
-    /// Session to make (and to make again after a server restart).
+    /// Session to make (and to make again after a server restart), with B instances
+    /// per member (`num_envs`); the session has P B.
     pub make: MakeOptions,
-    /// The acting policy (parameters arrive through `params`).
-    pub policy: ActorPolicy,
-    /// The actor's sampling stream (`random::Purpose::Acting`, index = actor number);
-    /// its counter is the actor's step number.
-    pub sampling: StreamKey,
+    /// The members, in order.
+    pub members: Vec<ActorMember>,
     /// Act calls already made (a resumed run's count, else 0).
     pub first_act: u64,
-    /// Seeds of sessions made after act 0 (`random::Purpose::EnvSeeds`): a resumed
-    /// run's envs continue with new episodes instead of repeating its first ones.
-    pub env_seeds: StreamKey,
-    /// Latest published policy parameters.
-    pub params: watch::Receiver<Arc<PolicySnapshot>>,
     /// Snippet sizes of the replay.
     pub layout: SnippetLayout,
-    /// Rate limiter and replay.
-    pub schedule: Arc<Schedule>,
-    /// Episode log.
-    pub files: Arc<RunFiles>,
-    /// Stop after this many env steps in total.
+    /// Stop after this many env steps per member.
     pub total_env_steps: u64,
-    /// ε-conditioned runs: the grid every episode draws its preference from, and the
-    /// actor's stream for those draws (`random::Purpose::ActingPreference`).
-    pub preferences: Option<(Arc<PreferenceGrid>, StreamKey)>,
 }
 
 /// The preference each instance of an ε-conditioned actor acts with in its current
@@ -155,11 +174,12 @@ impl ActionMap {
     }
 }
 
-/// A live session with its per-instance adders and the current observations.
+/// A live session with its per-instance adders (P B, member by member) and each
+/// member's current observations (as its policy sees them).
 struct Live {
     env: RemoteEnv,
     adders: Vec<SnippetAdder>,
-    obs: Vec<f32>,
+    obs: Vec<Vec<f32>>,
 }
 
 /// The parts of an actor that make sessions (shared across awaits, so no tensors).
@@ -167,41 +187,69 @@ struct Sessions<'a> {
     id: usize,
     servers: &'a ServerPool,
     make: &'a MakeOptions,
+    /// Each member's first seed and later-session seed stream.
+    seeds: Vec<(u64, StreamKey)>,
     layout: SnippetLayout,
-    schedule: &'a Schedule,
+    schedules: Vec<&'a Schedule>,
     total_env_steps: u64,
-    env_seeds: StreamKey,
 }
 
-/// The session's options at act `acts`: the run's seeds at its start, then seeds
-/// drawn from the actor's `EnvSeeds` stream at the act count.
-fn session_options(ctx: &Sessions<'_>, acts: u64) -> MakeOptions {
-    let mut make = ctx.make.clone();
-    if acts > 0 {
-        make.seed = Some(ctx.env_seeds.seed_at(acts));
+impl Sessions<'_> {
+    /// Every instance's seed for a session made at act `acts`: member p's run's seeds
+    /// at its start, then seeds drawn from its `EnvSeeds` stream at the act count.
+    fn instance_seeds(&self, acts: u64) -> Vec<u64> {
+        let b = self.make.num_envs as u64;
+        self.seeds
+            .iter()
+            .flat_map(|&(first, stream)| {
+                let base = if acts == 0 {
+                    first
+                } else {
+                    stream.seed_at(acts)
+                };
+                (0..b).map(move |j| base + j)
+            })
+            .collect()
     }
-    make
+
+    /// The run has ended for every member (stopped, or the budget spent).
+    fn ended(&self) -> bool {
+        self.schedules.iter().all(|s| {
+            let c = s.counters();
+            c.stop || c.env_steps >= self.total_env_steps
+        })
+    }
 }
 
 async fn start(
     ctx: &Sessions<'_>,
     client: &EnvClient,
-    cond: &mut Option<Conditioner>,
+    conds: &mut [Option<Conditioner>],
     acts: u64,
 ) -> Result<Live, EnvError> {
-    let mut env = client.make(&session_options(ctx, acts)).await?;
+    let seeds = ctx.instance_seeds(acts);
+    let mut make = ctx.make.clone();
+    make.num_envs = seeds.len();
+    make.seed = seeds.first().copied();
+    let mut env = client.make(&make).await?;
     // One stream per session: about 0.2 ms less per step than unary calls (issue 2's
     // bench). A broken stream closes the session on the server; `restart` makes it again.
     env.use_stream();
-    let reset = env.reset(&[], &[]).await?;
-    if let Some(c) = cond.as_mut() {
-        c.redraw_all(acts);
-    }
-    let obs = observed(cond, reset.observation.to_flat_f32(), None);
-    let o = ctx.layout.obs_dim;
-    let mut adders = vec![SnippetAdder::new(ctx.layout); ctx.make.num_envs];
-    for (i, adder) in adders.iter_mut().enumerate() {
-        adder.observe_first(&obs[i * o..(i + 1) * o]);
+    let reset = env.reset(&[], &seeds).await?;
+    let all = reset.observation.to_flat_f32();
+    let (b, o) = (ctx.make.num_envs, ctx.layout.obs_dim);
+    let width = all.len() / seeds.len().max(1);
+    let mut adders = vec![SnippetAdder::new(ctx.layout); seeds.len()];
+    let mut obs = Vec::with_capacity(conds.len());
+    for (p, cond) in conds.iter_mut().enumerate() {
+        if let Some(c) = cond.as_mut() {
+            c.redraw_all(acts);
+        }
+        let member = observed(cond, all[p * b * width..(p + 1) * b * width].to_vec(), None);
+        for (i, adder) in adders[p * b..(p + 1) * b].iter_mut().enumerate() {
+            adder.observe_first(&member[i * o..(i + 1) * o]);
+        }
+        obs.push(member);
     }
     Ok(Live { env, adders, obs })
 }
@@ -214,7 +262,7 @@ async fn restart(
     ctx: &Sessions<'_>,
     on: &mut Assignment,
     cause: &EnvError,
-    cond: &mut Option<Conditioner>,
+    conds: &mut [Option<Conditioner>],
     acts: u64,
 ) -> Result<Option<Live>, EnvError> {
     tracing::warn!(actor = ctx.id, server = %on.address, error = %cause, "env session lost; reconnecting");
@@ -223,14 +271,13 @@ async fn restart(
     // Backoff 0.2 s doubling to 5 s: about 5 minutes over 64 rounds, enough for a
     // server (or its replacement) to start.
     for _ in 0..64 {
-        let c = ctx.schedule.counters();
-        if c.stop || c.env_steps >= ctx.total_env_steps {
+        if ctx.ended() {
             return Ok(None);
         }
         for address in ctx.servers.candidates(&on.address).await {
             let attempt = match ctx.servers.client(&address).await {
                 // Probed with few retries: other addresses wait, and rounds back off.
-                Ok(client) => start(ctx, &client.with_retry(RetryPolicy::quick()), cond, acts)
+                Ok(client) => start(ctx, &client.with_retry(RetryPolicy::quick()), conds, acts)
                     .await
                     .map(|live| (live, client)),
                 Err(e) => Err(e),
@@ -277,47 +324,179 @@ fn recoverable(e: &EnvError) -> bool {
     ) || matches!(e, EnvError::Connect { .. })
 }
 
-/// Run until the env-step budget is spent or the schedule stops.
+/// What one env step gave one member: its instances' rows, local indices.
+struct MemberStep<'a> {
+    /// The member's number.
+    p: usize,
+    /// Its next observations as the env gives them `[B, O_env]`.
+    next_env: Vec<f32>,
+    /// Its episodes that ended, with instance indices local to the member.
+    episodes: Vec<crate::env::EpisodeSummary>,
+    /// Their final observations `[E, O_env]`.
+    finals: Vec<f32>,
+    /// The whole step (rewards and flags are read at the member's rows).
+    step: &'a crate::env::StepResult,
+}
+
+/// Turns one member's part of a step into its snippets and episode log rows, and
+/// commits them to its run.
+fn record_member(
+    member: &ActorMember,
+    cond: &mut Option<Conditioner>,
+    live: &mut Live,
+    ms: MemberStep<'_>,
+    (replay_actions, log_probs): (&[f32], &[f32]),
+    (id, acts, b, layout): (usize, u64, usize, SnippetLayout),
+) -> Result<(), EnvError> {
+    let (o, k) = (layout.obs_dim, layout.num_rewards);
+    let offset = ms.p * b;
+    let next = observed(cond, ms.next_env.clone(), None);
+    let ended: Vec<usize> = ms.episodes.iter().map(|e| e.env_index).collect();
+    let finals = observed(cond, ms.finals, Some(&ended));
+    let mut draws = cond.as_ref().map(|c| c.draws.at(2 * acts));
+    // The grid point each ended episode acted with, before new ones are drawn.
+    let ended_with: Vec<usize> = ended
+        .iter()
+        .map(|&i| cond.as_ref().map_or(0, |c| c.current[i]))
+        .collect();
+    let width = replay_actions.len() / b;
+    let mut snippets = Vec::new();
+    for i in 0..b {
+        let g = offset + i;
+        let ended_at = ended.iter().position(|&e| e == i);
+        let next_obs = match ended_at {
+            Some(j) if !finals.is_empty() => &finals[j * o..(j + 1) * o],
+            _ => &next[i * o..(i + 1) * o],
+        };
+        let adder_step = AdderStep {
+            action: &replay_actions[i * width..(i + 1) * width],
+            reward: &ms.step.reward[g * k..(g + 1) * k],
+            next_observation: next_obs,
+            terminated: ms.step.terminated[g],
+            truncated: ms.step.truncated[g],
+            log_prob: log_probs[i],
+        };
+        snippets.extend(live.adders[g].add(adder_step));
+        if ended_at.is_some() {
+            // The next episode acts with a new preference from its first state.
+            if let (Some(c), Some(stream)) = (cond.as_mut(), draws.as_mut()) {
+                c.current[i] = c.grid.draw(stream);
+            }
+            let first = match cond {
+                Some(c) => {
+                    let w = o - c.grid.num_features();
+                    observed(cond, ms.next_env[i * w..(i + 1) * w].to_vec(), Some(&[i]))
+                }
+                None => next[i * o..(i + 1) * o].to_vec(),
+            };
+            live.adders[g].observe_first(&first);
+        }
+    }
+    live.obs[ms.p] = match cond {
+        Some(_) => observed(cond, ms.next_env, None),
+        None => next,
+    };
+    let returns = ms.episodes.iter().map(|e| e.episode_return.clone());
+    let actor_step = ActorStep {
+        actor: id,
+        acts,
+        env_steps: b as u64,
+        snippets,
+        episode_returns: returns.collect(),
+    };
+    let wall_seconds = member.schedule.elapsed_seconds();
+    let log = |env_steps: u64| {
+        ms.episodes
+            .iter()
+            .zip(&ended_with)
+            .try_for_each(|(episode, &g)| {
+                member.files.episode(&EpisodeRecord {
+                    env_steps,
+                    actor: id,
+                    episode: episode.clone(),
+                    wall_seconds,
+                    preference: cond
+                        .as_ref()
+                        .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
+                })
+            })
+    };
+    member
+        .schedule
+        .commit(actor_step, log)
+        .map_err(|e| EnvError::Process(e.to_string()))
+}
+
+/// Each member's part of a step's ended episodes and final observations.
+fn split_step(step: &crate::env::StepResult, p: usize, b: usize) -> MemberStep<'_> {
+    let all = step.observation.to_flat_f32();
+    let width = all.len() / step.terminated.len().max(1);
+    let finals_all = step.final_observation.to_flat_f32();
+    let final_width = finals_all.len() / step.episodes.len().max(1);
+    let mut episodes = Vec::new();
+    let mut finals = Vec::new();
+    for (j, e) in step.episodes.iter().enumerate() {
+        if e.env_index / b == p {
+            episodes.push(crate::env::EpisodeSummary {
+                env_index: e.env_index - p * b,
+                ..e.clone()
+            });
+            finals.extend_from_slice(&finals_all[j * final_width..(j + 1) * final_width]);
+        }
+    }
+    MemberStep {
+        p,
+        next_env: all[p * b * width..(p + 1) * b * width].to_vec(),
+        episodes,
+        finals,
+        step,
+    }
+}
+
+/// Run until every member's env-step budget is spent or its run stops.
 pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     let ActorContext {
         id,
         server,
         servers,
         make,
-        mut policy,
-        sampling,
+        mut members,
         first_act,
-        env_seeds,
-        mut params,
         layout,
-        schedule,
-        files,
         total_env_steps,
-        preferences,
     } = ctx;
+    let b = make.num_envs;
+    let schedules: Vec<Arc<Schedule>> = members.iter().map(|m| m.schedule.clone()).collect();
     let sessions = Sessions {
         id,
         servers: &servers,
         make: &make,
+        seeds: members
+            .iter()
+            .map(|m| (m.first_seed, m.env_seeds))
+            .collect(),
         layout,
-        schedule: &schedule,
+        schedules: schedules.iter().map(Arc::as_ref).collect(),
         total_env_steps,
-        env_seeds,
     };
-    let b = make.num_envs;
-    let (o, k) = (layout.obs_dim, layout.num_rewards);
-    let mut cond = preferences.map(|(grid, draws)| Conditioner {
-        grid,
-        draws,
-        current: vec![0; b],
-    });
+    let o = layout.obs_dim;
+    let mut conds: Vec<Option<Conditioner>> = members
+        .iter()
+        .map(|m| {
+            m.preferences.clone().map(|(grid, draws)| Conditioner {
+                grid,
+                draws,
+                current: vec![0; b],
+            })
+        })
+        .collect();
     let mut on = server;
     let mut acts = first_act;
-    let mut live = match start(&sessions, &on.client, &mut cond, acts).await {
+    let mut live = match start(&sessions, &on.client, &mut conds, acts).await {
         Ok(live) => live,
         // The server went away between the pool's connect and this session.
         Err(e) if recoverable(&e) => {
-            match restart(&sessions, &mut on, &e, &mut cond, acts).await? {
+            match restart(&sessions, &mut on, &e, &mut conds, acts).await? {
                 Some(live) => live,
                 None => return Ok(()),
             }
@@ -331,28 +510,36 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         loop {
             // Waiting before acting (not after) makes a resumed actor wait, as the
             // stopped one was waiting, for the learner steps its checkpoint allowed.
-            schedule.wait_for_learner().await;
-            if params.has_changed().unwrap_or(false) {
-                let snapshot = params.borrow_and_update().clone();
-                policy
-                    .load(&snapshot)
-                    .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+            wait_for_population_learner(&sessions.schedules).await;
+            for m in &mut members {
+                if m.params.has_changed().unwrap_or(false) {
+                    let snapshot = m.params.borrow_and_update().clone();
+                    m.policy
+                        .load(&snapshot)
+                        .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+                }
             }
-            let c = schedule.counters();
-            if c.stop || c.env_steps >= total_env_steps {
+            if sessions.ended() {
                 break;
             }
-            let obs_t = Tensor::from_slice(&live.obs).view([b as i64, o as i64]);
-            let mut stream = sampling.at(acts);
+            let (mut actions, mut log_probs) = (Vec::new(), Vec::new());
+            for (m, obs) in members.iter().zip(&live.obs) {
+                let obs_t = Tensor::from_slice(obs).view([b as i64, o as i64]);
+                let out = m
+                    .policy
+                    .act(&obs_t, Acting::Sample(&mut m.sampling.at(acts)));
+                actions.push(out.actions);
+                log_probs.push(out.log_probs.to_kind(Kind::Float));
+            }
             acts += 1;
-            let out = policy.act(&obs_t, Acting::Sample(&mut stream));
             let log_probs =
-                Vec::<f32>::try_from(&out.log_probs.to_kind(Kind::Float)).expect("f32 log-probs");
-            let (env_action, replay_actions) = map.apply(&out.actions, b);
+                Vec::<f32>::try_from(&Tensor::cat(&log_probs, 0)).expect("f32 log-probs");
+            let (env_action, replay_actions) =
+                map.apply(&Tensor::cat(&actions, 0), b * members.len());
             let step = match live.env.step(&env_action).await {
                 Ok(step) => step,
                 Err(e) if recoverable(&e) => {
-                    match restart(&sessions, &mut on, &e, &mut cond, acts).await? {
+                    match restart(&sessions, &mut on, &e, &mut conds, acts).await? {
                         Some(restarted) => {
                             live = restarted;
                             continue;
@@ -362,81 +549,27 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 }
                 Err(e) => return Err(e),
             };
-            let next_env = step.observation.to_flat_f32();
-            // Both with the preference of the episode that just stepped.
-            let next = observed(&cond, next_env.clone(), None);
-            let ended: Vec<usize> = step.episodes.iter().map(|e| e.env_index).collect();
-            let finals = observed(&cond, step.final_observation.to_flat_f32(), Some(&ended));
-            let mut draws = cond.as_ref().map(|c| c.draws.at(2 * acts));
-            // The grid point each ended episode acted with, before new ones are drawn.
-            let ended_with: Vec<usize> = ended
-                .iter()
-                .map(|&i| cond.as_ref().map_or(0, |c| c.current[i]))
-                .collect();
-            let width = replay_actions.len() / b;
-            let mut snippets = Vec::new();
-            for i in 0..b {
-                let ended_at = step.episodes.iter().position(|e| e.env_index == i);
-                let next_obs = match ended_at {
-                    Some(j) if !finals.is_empty() => &finals[j * o..(j + 1) * o],
-                    _ => &next[i * o..(i + 1) * o],
-                };
-                let adder_step = AdderStep {
-                    action: &replay_actions[i * width..(i + 1) * width],
-                    reward: &step.reward[i * k..(i + 1) * k],
-                    next_observation: next_obs,
-                    terminated: step.terminated[i],
-                    truncated: step.truncated[i],
-                    log_prob: log_probs[i],
-                };
-                snippets.extend(live.adders[i].add(adder_step));
-                if ended_at.is_some() {
-                    // The next episode acts with a new preference from its first state.
-                    if let (Some(c), Some(stream)) = (cond.as_mut(), draws.as_mut()) {
-                        c.current[i] = c.grid.draw(stream);
-                    }
-                    let first = match &cond {
-                        Some(c) => {
-                            let w = o - c.grid.num_features();
-                            observed(&cond, next_env[i * w..(i + 1) * w].to_vec(), Some(&[i]))
-                        }
-                        None => next[i * o..(i + 1) * o].to_vec(),
-                    };
-                    live.adders[i].observe_first(&first);
+            let width = replay_actions.len() / (b * members.len());
+            for (p, (m, cond)) in members.iter().zip(conds.iter_mut()).enumerate() {
+                let ms = split_step(&step, p, b);
+                if m.schedule.stopping() {
+                    // Its run has ended: the session still steps its instances.
+                    live.obs[p] = observed(cond, ms.next_env, None);
+                    continue;
                 }
+                let rows = p * b..(p + 1) * b;
+                record_member(
+                    m,
+                    cond,
+                    &mut live,
+                    ms,
+                    (
+                        &replay_actions[rows.start * width..rows.end * width],
+                        &log_probs[rows],
+                    ),
+                    (id, acts, b, layout),
+                )?;
             }
-            live.obs = match cond {
-                Some(_) => observed(&cond, next_env, None),
-                None => next,
-            };
-            let returns = step.episodes.iter().map(|e| e.episode_return.clone());
-            let actor_step = ActorStep {
-                actor: id,
-                acts,
-                env_steps: b as u64,
-                snippets,
-                episode_returns: returns.collect(),
-            };
-            let wall_seconds = schedule.elapsed_seconds();
-            let log = |env_steps: u64| {
-                step.episodes
-                    .iter()
-                    .zip(&ended_with)
-                    .try_for_each(|(episode, &g)| {
-                        files.episode(&EpisodeRecord {
-                            env_steps,
-                            actor: id,
-                            episode: episode.clone(),
-                            wall_seconds,
-                            preference: cond
-                                .as_ref()
-                                .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
-                        })
-                    })
-            };
-            schedule
-                .commit(actor_step, log)
-                .map_err(|e| EnvError::Process(e.to_string()))?;
         }
         Ok(())
     }

@@ -4,6 +4,13 @@
 //! Runs on its own OS thread (libtorch calls block). Checkpoints of the whole run
 //! (`resume.rs`, `checkpoint/run.rs`) are written every `checkpoint_period` steps
 //! and at the end.
+//!
+//! A population learner steps its P members in lockstep, each with its own run:
+//! schedule (replay, pace, counters), published policy, logs and checkpoints. A step
+//! waits until every running member's schedule allows one. A member whose run stops
+//! without an error (solved with `run.stop_on_solve`, or a signal) gets its final
+//! checkpoint and policy there and leaves the population; the others go on. An error
+//! in any member's run stops them all.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -29,6 +36,9 @@ pub enum LearnerLoopError {
     /// Writing or reading a checkpoint failed.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    /// Another member's run failed, which stops the population.
+    #[error("{0}")]
+    Stopped(String),
     /// A run file could not be written.
     #[error("{path}: {source}")]
     Io {
@@ -125,100 +135,166 @@ impl LearnerRecord {
     }
 }
 
-/// What the learner thread needs.
+/// One member's run as the learner loop sees it.
 #[derive(Debug)]
-pub struct LearnerContext {
-    /// The learner (fresh or restored).
-    pub learner: Learner,
+pub struct MemberLoop {
     /// Rate limiter and replay.
     pub schedule: Arc<Schedule>,
     /// Where published policies go.
     pub params: watch::Sender<Arc<PolicySnapshot>>,
     /// Run files.
     pub files: Arc<RunFiles>,
-    /// Learner steps between publications.
-    pub publish_period: u64,
-    /// Learner steps between checkpoints.
-    pub checkpoint_period: u64,
-    /// Learner steps between log records.
-    pub log_period: u64,
     /// The latest statistics, for the progress display.
     pub latest: Arc<Mutex<Option<LearnerStats>>>,
     /// Writes the run's checkpoints.
     pub checkpointer: Checkpointer,
 }
 
-/// Run until the schedule stops; always writes a final checkpoint. Returns the learner.
-pub fn run_learner(ctx: LearnerContext) -> Result<Learner, LearnerLoopError> {
+/// What the learner thread needs.
+#[derive(Debug)]
+pub struct LearnerContext {
+    /// The learner (fresh or restored), of one or more members.
+    pub learner: Learner,
+    /// Each member's run, in member order.
+    pub members: Vec<MemberLoop>,
+    /// Learner steps between publications.
+    pub publish_period: u64,
+    /// Learner steps between checkpoints.
+    pub checkpoint_period: u64,
+    /// Learner steps between log records.
+    pub log_period: u64,
+}
+
+/// What the learner loop leaves: the learner, and each member's policy at the end of
+/// its run (its final checkpoint's).
+#[derive(Debug)]
+pub struct LearnerDone {
+    /// The learner.
+    pub learner: Learner,
+    /// Each member's final policy, in member order.
+    pub policies: Vec<PolicySnapshot>,
+}
+
+/// A member's bookkeeping in the loop.
+struct Running {
+    run: MemberLoop,
+    /// (seconds, env steps, learner steps) at the previous record, for the rates.
+    previous: (f64, u64, u64),
+    /// The final policy once the member's run has ended.
+    done: Option<PolicySnapshot>,
+}
+
+/// Run until every member's schedule stops; always writes each member's final
+/// checkpoint. Returns the learner and the members' final policies.
+pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError> {
     let LearnerContext {
         mut learner,
-        schedule,
-        params,
-        files,
+        members,
         publish_period,
         checkpoint_period,
         log_period,
-        latest,
-        mut checkpointer,
     } = ctx;
     let started = Instant::now();
-    // (seconds, env steps, learner steps) at the previous record, for the rates.
-    let mut previous = (0.0, schedule.counters().env_steps, learner.step_count());
+    let mut members: Vec<Running> = members
+        .into_iter()
+        .map(|run| Running {
+            previous: (0.0, run.schedule.counters().env_steps, learner.step_count()),
+            run,
+            done: None,
+        })
+        .collect();
     let device = learner.device();
     let batch_size = learner.settings().batch_size;
     let result = (|| -> Result<(), LearnerLoopError> {
-        while schedule.wait_for_work() {
+        loop {
+            // Lockstep: wait until every running member allows a step.
+            for (p, m) in members.iter_mut().enumerate() {
+                if m.done.is_some() || m.run.schedule.wait_for_work() {
+                    continue;
+                }
+                if let Some(error) = m.run.schedule.counters().error {
+                    return Err(LearnerLoopError::Stopped(error));
+                }
+                m.run.checkpointer.save(&learner, &m.run.schedule)?;
+                m.done = Some(learner.member_policy_snapshot(p));
+            }
+            if members.iter().all(|m| m.done.is_some()) {
+                return Ok(());
+            }
             let t0 = Instant::now();
-            let batch = schedule
-                .replay
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .sample(batch_size);
-            let stats = learner.step(&batch.to_device(device))?;
+            let batches = members
+                .iter()
+                .map(|m| {
+                    let replay = m.run.schedule.replay.lock();
+                    let batch = replay.unwrap_or_else(|e| e.into_inner()).sample(batch_size);
+                    batch.to_device(device)
+                })
+                .collect::<Vec<_>>();
+            let all_stats = learner.step_members(&batches)?;
             let step_ms = t0.elapsed().as_secs_f64() * 1e3;
             let n = learner.step_count();
-            if n % publish_period == 0 {
-                params.send_replace(Arc::new(learner.policy_snapshot()));
+            for (p, (m, stats)) in members.iter_mut().zip(all_stats).enumerate() {
+                if m.done.is_some() {
+                    continue;
+                }
+                let run = &m.run;
+                if n % publish_period == 0 {
+                    run.params
+                        .send_replace(Arc::new(learner.member_policy_snapshot(p)));
+                }
+                if n % log_period == 0 {
+                    let (wall_seconds, env_steps) = (
+                        started.elapsed().as_secs_f64(),
+                        run.schedule.counters().env_steps,
+                    );
+                    let previous = m.previous;
+                    let dt = (wall_seconds - previous.0).max(1e-9);
+                    let record = LearnerRecord {
+                        learner_step: n,
+                        env_steps,
+                        wall_seconds,
+                        critic_loss: stats.critic_loss.clone(),
+                        temperature: stats.temperature.clone(),
+                        estep_kl: stats.estep_kl.clone(),
+                        alpha: stats.alpha.clone(),
+                        policy_kl: stats.policy_kl.clone(),
+                        step_ms,
+                        env_steps_per_second: env_steps.saturating_sub(previous.1) as f64 / dt,
+                        learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,
+                    };
+                    m.previous = (wall_seconds, env_steps, n);
+                    // Every TensorBoard chart is by env step, as in SB3 and Acme.
+                    let files = &m.run.files;
+                    files
+                        .scalars(env_steps, &record.scalars(files.objectives()))
+                        .map_err(io_err(&files.events_path()))?;
+                    let path = files.dir().join("learner.jsonl");
+                    files.learner(&record).map_err(io_err(&path))?;
+                }
+                *m.run.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
+                if n % checkpoint_period == 0 {
+                    m.run.checkpointer.save(&learner, &m.run.schedule)?;
+                }
+                m.run.schedule.learner_stepped();
             }
-            if n % log_period == 0 {
-                let (wall_seconds, env_steps) = (
-                    started.elapsed().as_secs_f64(),
-                    schedule.counters().env_steps,
-                );
-                let dt = (wall_seconds - previous.0).max(1e-9);
-                let record = LearnerRecord {
-                    learner_step: n,
-                    env_steps,
-                    wall_seconds,
-                    critic_loss: stats.critic_loss.clone(),
-                    temperature: stats.temperature.clone(),
-                    estep_kl: stats.estep_kl.clone(),
-                    alpha: stats.alpha.clone(),
-                    policy_kl: stats.policy_kl.clone(),
-                    step_ms,
-                    env_steps_per_second: env_steps.saturating_sub(previous.1) as f64 / dt,
-                    learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,
-                };
-                previous = (wall_seconds, env_steps, n);
-                // Every TensorBoard chart is by env step, as in SB3 and Acme.
-                files
-                    .scalars(env_steps, &record.scalars(files.objectives()))
-                    .map_err(io_err(&files.events_path()))?;
-                let path = files.dir().join("learner.jsonl");
-                files.learner(&record).map_err(io_err(&path))?;
-            }
-            *latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
-            if n % checkpoint_period == 0 {
-                checkpointer.save(&learner, &schedule)?;
-            }
-            schedule.learner_stepped();
         }
-        Ok(())
     })();
     if let Err(e) = &result {
-        schedule.stop(Some(e.to_string()));
+        for m in &members {
+            m.run.schedule.stop(Some(e.to_string()));
+        }
     }
-    // Whatever happened, leave a checkpoint of the state reached.
-    checkpointer.save(&learner, &schedule)?;
-    result.map(|()| learner)
+    // Whatever happened, leave a checkpoint of the state each member reached.
+    let mut policies = Vec::with_capacity(members.len());
+    for (p, m) in members.iter_mut().enumerate() {
+        if m.done.is_none() {
+            m.run.checkpointer.save(&learner, &m.run.schedule)?;
+        }
+        policies.push(
+            m.done
+                .take()
+                .unwrap_or_else(|| learner.member_policy_snapshot(p)),
+        );
+    }
+    result.map(|()| LearnerDone { learner, policies })
 }

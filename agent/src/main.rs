@@ -105,6 +105,11 @@ enum Command {
         /// Override learner.device of every run.
         #[arg(long, value_enum)]
         device: Option<DeviceChoice>,
+        /// Most members of one population (overrides the sweep file's `population`):
+        /// jobs that differ only in seed, ε or weights train as one batched learner;
+        /// 1 trains every job alone.
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+        population: Option<u64>,
         /// Write a video of every run's final evaluation (<run>/videos/final.mp4).
         #[arg(long)]
         video: bool,
@@ -283,6 +288,7 @@ async fn run() -> Result<()> {
             total_env_steps,
             overrides,
             device,
+            population,
             video,
             video_args,
         } => {
@@ -309,6 +315,9 @@ async fn run() -> Result<()> {
             // What may differ between invocations of one sweep (see SweepFolder::comparable).
             if let Some(d) = device {
                 folder.base.learner.device = d;
+            }
+            if let Some(n) = population {
+                folder.sweep.population = Some(n as usize);
             }
             let configured = if servers.is_empty() {
                 folder.base.env.servers.clone()

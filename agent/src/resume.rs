@@ -44,6 +44,8 @@ pub struct Checkpointer {
     replay: bool,
     /// Snippets numbered below this are in segments already.
     segments_end: u64,
+    /// Which member of the learner this run is.
+    member: usize,
 }
 
 impl Checkpointer {
@@ -54,7 +56,13 @@ impl Checkpointer {
             files,
             replay,
             segments_end,
+            member: 0,
         }
+    }
+
+    /// The checkpoints of member `member` of a population learner.
+    pub fn for_member(self, member: usize) -> Self {
+        Self { member, ..self }
     }
 
     /// Write a checkpoint of `learner` and the run's state; returns its directory.
@@ -106,7 +114,13 @@ impl Checkpointer {
             snippets: &snapshot.snippets,
         };
         let progress = &snapshot.progress;
-        let ckpt = write_run_checkpoint(&dir, learner, progress, self.replay.then_some(new))?;
+        let ckpt = write_run_checkpoint(
+            &dir,
+            learner,
+            self.member,
+            progress,
+            self.replay.then_some(new),
+        )?;
         if let Some(state) = &progress.replay {
             self.segments_end = state.inserted;
         }

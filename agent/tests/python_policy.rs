@@ -193,7 +193,7 @@ fn a_mocap_policy_in_pytorch_acts_as_the_agent() {
     std::fs::create_dir_all(&run).unwrap();
     std::fs::write(run.join("config.toml"), toml::to_string(&cfg).unwrap()).unwrap();
     let progress = RunProgress::learner_only(learner.step_count());
-    write_run_checkpoint(&run, &learner, &progress, None).unwrap();
+    write_run_checkpoint(&run, &learner, 0, &progress, None).unwrap();
     // Leaves walker/joints (1) and walker/reference_pos (2): proprioception is index 0.
     let obs = observations(32, common::OBS as usize, 3.0);
     let obs_path = dir.path().join("obs.json");

@@ -20,7 +20,8 @@ use agent::env::server_process::{LocalServer, ServerOptions};
 use cli::{agent_cmd, copy_dir, run_dir_in, smoke_dst};
 
 /// Three settings, one seed, 2500 env steps each (about 2 s a job on 2 cores), a
-/// checkpoint every 50 learner steps so that a kill finds one.
+/// checkpoint every 50 learner steps so that a kill finds one. One job at a time
+/// (`population = 1`): the kill below comes between jobs, after job 0 finished.
 fn tiny_sweep(dir: &Path) -> PathBuf {
     let (_, base) = smoke_dst(dir);
     let text = std::fs::read_to_string(&base)
@@ -34,6 +35,7 @@ fn tiny_sweep(dir: &Path) -> PathBuf {
 name = "tiny"
 base = "dst.toml"
 total_env_steps = 2500
+population = 1
 reference_point = { time = -25.0, treasure = 0.0 }
 [grid]
 kind = "epsilon"

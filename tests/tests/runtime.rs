@@ -8,6 +8,8 @@ use agent::sweep::SweepConfig;
 use agent::train::{TrainOptions, train};
 use integration_tests::smoke_config;
 
+/// The two settings train as one population (one batched learner, one env session)
+/// and still get a run folder each.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sweep_on_a_two_point_grid_writes_csv_hypervolume_and_plots() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
@@ -25,6 +27,7 @@ async fn sweep_on_a_two_point_grid_writes_csv_hypervolume_and_plots() {
 name = "two-point"
 base = "base.toml"
 parallel = 2
+population = 2
 total_env_steps = 1500
 reference_point = { time = -25.0, treasure = 0.0 }
 [grid]
@@ -48,6 +51,22 @@ y_objective = "treasure"
     .await
     .unwrap();
     assert_eq!(s.points.len(), 2);
+    // Each member has its own run, and the population stepped them in lockstep.
+    let learner_steps: Vec<u64> = s
+        .points
+        .iter()
+        .map(|p| {
+            let text = std::fs::read_to_string(p.run_dir.join("summary.json")).unwrap();
+            let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            assert!(p.run_dir.join("learner.jsonl").exists());
+            v["learner_steps"].as_u64().unwrap()
+        })
+        .collect();
+    assert_ne!(s.points[0].run_dir, s.points[1].run_dir);
+    assert!(
+        learner_steps[0] > 0 && learner_steps[0] == learner_steps[1],
+        "{learner_steps:?}"
+    );
     let returns: Vec<Vec<f64>> = s.points.iter().map(|p| p.eval_return.clone()).collect();
     assert_eq!(s.hypervolume, hypervolume(&returns, &[-25.0, 0.0]));
     let csv = std::fs::read_to_string(s.dir.join("points.csv")).unwrap();

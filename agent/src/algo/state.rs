@@ -154,6 +154,8 @@ pub struct Learner {
     pub(crate) noise: Vec<NoiseSource>,
     /// How many members; parameters and duals are stacked when more than one.
     pub(crate) members: Members,
+    /// Each member's config (`cfg` is the first's).
+    pub(crate) member_cfgs: Vec<LearnerConfig>,
     /// Sampling `act` calls so far: the counter of the `LearnerActing` stream.
     acts: Cell<u64>,
     pub(crate) step: u64,
@@ -283,7 +285,7 @@ impl Learner {
                     .as_slice(),
             )
             .to_device(device);
-        let noise = cfgs
+        let noise: Vec<NoiseSource> = cfgs
             .iter()
             .map(|c| NoiseSource::Draw(StreamKey::new(c.seed, Purpose::LearnerNoise, 0)))
             .collect();
@@ -307,6 +309,7 @@ impl Learner {
             conditioned,
             noise,
             members,
+            member_cfgs: cfgs,
             acts: Cell::new(0),
             step: 0,
         })

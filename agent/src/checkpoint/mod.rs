@@ -31,6 +31,7 @@ pub mod run;
 
 use crate::algo::adam::AdamStateError;
 use crate::algo::state::Critics;
+use crate::algo::state::to_vec;
 use crate::algo::{Learner, LearnerDims, LearnerError};
 use crate::config::LearnerConfig;
 use crate::nets::NamedArray;
@@ -38,7 +39,7 @@ use crate::nets::snapshot::{load_named, named_arrays};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use tch::{Device, Tensor, nn};
+use tch::{Device, Kind, Tensor, nn};
 
 const FORMAT_VERSION: u32 = 1;
 
@@ -211,6 +212,25 @@ impl Learner {
         dir: &Path,
         extra: &[ExtraFile<'_>],
     ) -> Result<(), CheckpointError> {
+        self.save_member_checkpoint(dir, 0, extra)
+    }
+
+    /// Member `member`'s checkpoint: its slice of every network, optimizer moment and
+    /// dual, with its own config, in the format of a learner of one member (so
+    /// `agent eval` and `--resume` read a population member's run as any other).
+    pub fn save_member_checkpoint(
+        &self,
+        dir: &Path,
+        member: usize,
+        extra: &[ExtraFile<'_>],
+    ) -> Result<(), CheckpointError> {
+        let view = |t: Tensor| self.members.view(&t, member as i64, 1);
+        let prefixed = |vs: &nn::VarStore, prefix: &str| -> Vec<(String, Tensor)> {
+            prefixed(vs, prefix)
+                .into_iter()
+                .map(|(k, v)| (k, view(v)))
+                .collect()
+        };
         let name = dir
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -234,9 +254,9 @@ impl Learner {
         }
         params.push((
             "duals/temperature".into(),
-            self.duals.temperature_param.detach(),
+            view(self.duals.temperature_param.detach()),
         ));
-        params.push(("duals/alpha".into(), self.duals.alpha_param.detach()));
+        params.push(("duals/alpha".into(), view(self.duals.alpha_param.detach())));
         Tensor::write_safetensors(&params, tmp.join("params.safetensors"))?;
 
         let mut moments = Vec::new();
@@ -248,12 +268,21 @@ impl Learner {
             moments.extend(
                 opt.state_tensors()
                     .into_iter()
-                    .map(|(k, v)| (format!("{prefix}/{k}"), v)),
+                    .map(|(k, v)| (format!("{prefix}/{k}"), view(v))),
             );
         }
         Tensor::write_safetensors(&moments, tmp.join("optimizer.safetensors"))?;
 
-        let (temperature, alpha) = self.duals.values();
+        let temperature = self.member_duals(member).0;
+        let alpha = {
+            let a = self.duals.alpha();
+            to_vec(
+                &self
+                    .members
+                    .view(&a, member as i64, 1)
+                    .mean_dim(-1, false, Kind::Float),
+            )
+        };
         let state = CheckpointState {
             format_version: FORMAT_VERSION,
             step: self.step,
@@ -264,7 +293,7 @@ impl Learner {
             ],
             temperature,
             alpha,
-            config: self.cfg.clone(),
+            config: self.member_cfgs[member].clone(),
             dims: self.dims.clone(),
         };
         let json_path = tmp.join("state.json");

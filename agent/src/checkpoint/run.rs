@@ -169,10 +169,12 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
     }
 }
 
-/// Write a whole-run checkpoint (see module docs); returns its directory.
+/// Write a whole-run checkpoint of `learner`'s member `member` (see module docs);
+/// returns its directory.
 pub fn write_run_checkpoint(
     run_dir: &Path,
     learner: &Learner,
+    member: usize,
     progress: &RunProgress,
     new_snippets: Option<NewSnippets<'_>>,
 ) -> Result<PathBuf, CheckpointError> {
@@ -187,8 +189,9 @@ pub fn write_run_checkpoint(
     if !ckpt.exists() {
         let json_path = ckpt.join("run.json");
         let text = serde_json::to_vec_pretty(progress).map_err(json_error(&json_path))?;
-        learner.save_checkpoint_with(
+        learner.save_member_checkpoint(
             &ckpt,
+            member,
             &[ExtraFile {
                 name: "run.json",
                 contents: &text,

@@ -152,6 +152,17 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
+    /// This config with the fields a population's members may differ in blanked
+    /// (seed, ε, scalarization weights, runs folder): runs with equal keys can train
+    /// as one population (`train::train_population`).
+    pub fn population_key(&self) -> TrainConfig {
+        let mut key = self.clone();
+        key.seed = 0;
+        key.learner = crate::algo::population::population_key(&self.learner);
+        key.run.runs_dir = PathBuf::new();
+        key
+    }
+
     /// Read and validate a TOML file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         Self::load_with(path, &[])

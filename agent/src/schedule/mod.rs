@@ -308,6 +308,19 @@ impl Schedule {
         }
     }
 
+    /// Whether the learner has caught up with the env steps so far (or the run stops):
+    /// what `wait_for_learner` waits for.
+    pub fn caught_up(&self) -> bool {
+        let fill = self.fill();
+        let c = self.lock();
+        c.stop || c.learner_steps >= self.allowed(&c, fill)
+    }
+
+    /// Whether the run is stopping.
+    pub fn stopping(&self) -> bool {
+        self.lock().stop
+    }
+
     /// Learner: one step done; wake waiting actors.
     pub fn learner_stepped(&self) -> u64 {
         let mut c = self.lock();
@@ -338,6 +351,32 @@ impl Schedule {
         drop(c);
         self.learner_wake.notify_all();
         self.actor_wake.notify_waiters();
+    }
+}
+
+/// Actors of a population (one schedule per member, stepped in lockstep): wait until
+/// the learner has caught up with the member that allows it the fewest steps, so
+/// that actors and learner never wait for each other (members' allowances differ
+/// while their replays warm up). Stopped members do not count; with none left it
+/// returns at once.
+pub async fn wait_for_population_learner(schedules: &[&Schedule]) {
+    loop {
+        let active: Vec<&Schedule> = schedules
+            .iter()
+            .copied()
+            .filter(|s| !s.stopping())
+            .collect();
+        let mut notified: Vec<_> = active
+            .iter()
+            .map(|s| Box::pin(s.actor_wake.notified()))
+            .collect();
+        for n in &mut notified {
+            n.as_mut().enable();
+        }
+        if active.is_empty() || active.iter().any(|s| s.caught_up()) {
+            return;
+        }
+        futures::future::select_all(notified).await;
     }
 }
 

@@ -92,6 +92,14 @@ pub struct SweepConfig {
     /// Every run draws from its own random streams, so `parallel` changes no result.
     #[serde(default = "default_parallel")]
     pub parallel: usize,
+    /// Most members of one population: jobs whose configs differ only in seed, ε or
+    /// scalarization weights (and MO-MPO or scalarized MPO with plain networks) train
+    /// as one batched learner with one env session (DESIGN.md "Populations"); each
+    /// job still gets its own run folder. Unset: each such group is split evenly
+    /// into `parallel` populations. 1: every job trains alone. `parallel` counts
+    /// populations. `agent sweep --population N` overrides it.
+    #[serde(default)]
+    pub population: Option<usize>,
     /// The settings.
     pub grid: Grid,
     /// Optional ε-ratio plot.
@@ -186,6 +194,9 @@ impl SweepConfig {
     fn validate(&self, base: &TrainConfig) -> Result<(), ConfigError> {
         if self.seeds.is_empty() {
             return Err(invalid("seeds", "non-empty", &self.seeds));
+        }
+        if self.population == Some(0) {
+            return Err(invalid("population", ">= 1 when set", 0));
         }
         let settings = self.settings();
         if settings.is_empty() {

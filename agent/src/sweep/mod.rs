@@ -32,10 +32,11 @@ pub use shard::{Shard, ShardError};
 
 use futures::StreamExt;
 
+use crate::algo::population::unbatchable;
 use crate::config::ConfigError;
 use crate::metrics::format_vector;
 use crate::run_config::TrainConfig;
-use crate::train::{TrainError, TrainOptions, TrainSummary, train};
+use crate::train::{TrainError, TrainOptions, train_population};
 use crate::video::{VideoOptions, VideoPlan};
 
 /// `pain=0.9 task=0.1`: each value rounded to 12 decimals, so that a complemented weight
@@ -169,8 +170,8 @@ pub async fn sweep(
 }
 
 /// Run `folder`'s jobs (a new sweep or shard, or one to resume) and report its front:
-/// finished jobs are kept, a job with a checkpoint continues from it, the others
-/// train from the start.
+/// finished jobs are kept, a job with a checkpoint continues from it alone, the others
+/// train from the start in populations (`populations`).
 pub async fn run(
     folder: &SweepFolder,
     addresses: &[String],
@@ -190,63 +191,65 @@ pub async fn run(
         .expect("valid template"),
     );
     // A bar drawn to a non-terminal is hidden and would swallow println.
-    let say = |bar: &indicatif::ProgressBar, line: String| {
+    let say = |line: String| {
         if bar.is_hidden() {
             tracing::info!("{}", line.trim())
         } else {
             bar.println(line)
         }
     };
-    let runs = futures::stream::iter(folder.jobs.iter().map(|job| {
-        let bar = bar.clone();
-        async move {
-            let resume = match folder.job_state(job)? {
-                JobState::Finished(run, _) => {
-                    say(
-                        &bar,
-                        format!("  {}: finished in {}, kept", job.label(), run.display()),
-                    );
-                    bar.inc(1);
-                    return Ok(());
-                }
-                JobState::Checkpointed(run) => Some(run),
-                JobState::Fresh => None,
-                JobState::Abandoned(run) => {
-                    say(
-                        &bar,
-                        format!(
-                            "  {}: {} has no checkpoint, starting over",
-                            job.label(),
-                            run.display()
-                        ),
-                    );
-                    std::fs::remove_dir_all(&run).map_err(|source| SweepError::Io {
-                        path: run.clone(),
-                        source,
-                    })?;
-                    None
-                }
-            };
-            let mut cfg = apply(&folder.base, &job.setting, job.seed)?;
-            // One directory per job, so that each job's run is found by its index.
-            cfg.run.runs_dir = folder.job_dir(job);
-            if let Some(n) = folder.sweep.total_env_steps {
-                cfg.run.total_env_steps = n;
+    let mut units: Vec<Vec<Unit>> = Vec::new();
+    let mut fresh = Vec::new();
+    for job in &folder.jobs {
+        let cfg = job_config(folder, job)?;
+        match folder.job_state(job)? {
+            JobState::Finished(run, _) => {
+                say(format!(
+                    "  {}: finished in {}, kept",
+                    job.label(),
+                    run.display()
+                ));
+                bar.inc(1);
             }
-            if let Some(run) = &resume {
+            JobState::Checkpointed(run) => {
                 // As `agent train --resume`: the run continues as it was configured.
                 let mut stored = TrainConfig::load(&run.join("config.toml"))?;
                 // The job's folder is where the run is found now: the sweep folder may
                 // have been moved, or be named by another path (relative, a mount).
                 stored.run.runs_dir = cfg.run.runs_dir.clone();
                 cfg.check_resume_changes(&stored)?;
-                say(
-                    &bar,
-                    format!("  {}: resuming {}", job.label(), run.display()),
-                );
+                say(format!("  {}: resuming {}", job.label(), run.display()));
+                units.push(vec![Unit {
+                    job,
+                    cfg,
+                    resume: Some(run),
+                }]);
             }
-            let s: TrainSummary = train(
-                cfg,
+            JobState::Abandoned(run) => {
+                say(format!(
+                    "  {}: {} has no checkpoint, starting over",
+                    job.label(),
+                    run.display()
+                ));
+                std::fs::remove_dir_all(&run).map_err(|source| SweepError::Io {
+                    path: run.clone(),
+                    source,
+                })?;
+                fresh.push((job, cfg));
+            }
+            JobState::Fresh => fresh.push((job, cfg)),
+        }
+    }
+    let parallel = folder.sweep.parallel.max(1);
+    units.extend(populations(fresh, folder.sweep.population, parallel));
+    let runs = futures::stream::iter(units.into_iter().map(|unit| {
+        let say = &say;
+        let bar = bar.clone();
+        async move {
+            let resume = unit[0].resume.clone();
+            let cfgs = unit.iter().map(|u| u.cfg.clone()).collect();
+            let summaries = train_population(
+                cfgs,
                 addresses,
                 TrainOptions {
                     resume,
@@ -258,29 +261,28 @@ pub async fn run(
                 },
             )
             .await?;
-            if let Some(signal) = &s.interrupted {
-                // The signal reached every run: end the sweep instead of starting more.
-                return Err(SweepError::Train(TrainError::Stopped(format!(
-                    "interrupted ({signal}); run {} has its checkpoint and report, \
-                     and agent sweep --resume {} continues the sweep",
-                    s.run_dir.display(),
-                    folder.dir.display()
-                ))));
-            }
-            say(
-                &bar,
-                format!(
+            for (u, s) in unit.iter().zip(&summaries) {
+                if let Some(signal) = &s.interrupted {
+                    // The signal reached every run: end the sweep instead of starting more.
+                    return Err(SweepError::Train(TrainError::Stopped(format!(
+                        "interrupted ({signal}); run {} has its checkpoint and report, \
+                         and agent sweep --resume {} continues the sweep",
+                        s.run_dir.display(),
+                        folder.dir.display()
+                    ))));
+                }
+                say(format!(
                     "  {:<40} seed {}: eval return {}",
-                    setting_label(&job.setting),
-                    job.seed,
+                    setting_label(&u.job.setting),
+                    u.job.seed,
                     format_vector(&s.eval_return)
-                ),
-            );
-            bar.inc(1);
+                ));
+                bar.inc(1);
+            }
             Ok::<_, SweepError>(())
         }
     }))
-    .buffer_unordered(folder.sweep.parallel.max(1))
+    .buffer_unordered(parallel)
     .collect::<Vec<_>>()
     .await;
     runs.into_iter().collect::<Result<Vec<()>, _>>()?;
@@ -290,6 +292,63 @@ pub async fn run(
         folder.dir.clone(),
         started.elapsed().as_secs_f64(),
     )
+}
+
+/// One job as it will train.
+struct Unit<'a> {
+    job: &'a Job,
+    cfg: TrainConfig,
+    /// Its run's folder, when it continues from a checkpoint (alone).
+    resume: Option<PathBuf>,
+}
+
+/// The run config of `job`: the base with its setting and seed, in its own folder.
+fn job_config(folder: &SweepFolder, job: &Job) -> Result<TrainConfig, SweepError> {
+    let mut cfg = apply(&folder.base, &job.setting, job.seed)?;
+    // One directory per job, so that each job's run is found by its index.
+    cfg.run.runs_dir = folder.job_dir(job);
+    if let Some(n) = folder.sweep.total_env_steps {
+        cfg.run.total_env_steps = n;
+    }
+    Ok(cfg)
+}
+
+/// New jobs grouped into populations: jobs of one population key (in job order) that
+/// batch, in at most `cap` members each, or (unset) split evenly into `parallel`
+/// populations; jobs that do not batch train alone.
+fn populations(
+    jobs: Vec<(&Job, TrainConfig)>,
+    cap: Option<usize>,
+    parallel: usize,
+) -> Vec<Vec<Unit<'_>>> {
+    let mut groups: Vec<(String, Vec<Unit<'_>>)> = Vec::new();
+    for (job, cfg) in jobs {
+        let key = serde_json::to_string(&cfg.population_key()).unwrap_or_default();
+        let unit = Unit {
+            job,
+            cfg,
+            resume: None,
+        };
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, members)) => members.push(unit),
+            None => groups.push((key, vec![unit])),
+        }
+    }
+    let mut out = Vec::new();
+    for (_, members) in groups {
+        let batches = unbatchable(&members[0].cfg.learner).is_none();
+        let size = match (batches, cap) {
+            (false, _) => 1,
+            (true, Some(cap)) => cap,
+            (true, None) => members.len().div_ceil(parallel),
+        }
+        .max(1);
+        let mut members = members.into_iter().peekable();
+        while members.peek().is_some() {
+            out.push(members.by_ref().take(size).collect());
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -20,7 +20,8 @@ use serde::Serialize;
 use tch::Device;
 use tokio::sync::watch;
 
-use crate::actor::{ActorContext, run_actor};
+use crate::actor::{ActorContext, ActorMember, run_actor};
+use crate::algo::LearnerStats;
 use crate::algo::objectives::{LearnerDims, check_declared};
 use crate::algo::preferences::PreferenceGrid;
 use crate::config::ConfigError;
@@ -29,13 +30,14 @@ use crate::env::pool::{ActorServers, ServerPool};
 use crate::env::{EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
 use crate::front::FrontSummary;
-use crate::learner::{LearnerContext, LearnerLoopError, run_learner};
+use crate::learner::{LearnerContext, LearnerDone, LearnerLoopError, MemberLoop, run_learner};
 use crate::metrics::{RunFiles, mean_of};
-use crate::nets::ActorPolicy;
+use crate::nets::{ActorPolicy, PolicySnapshot};
 use crate::plot::PlotError;
 use crate::random::{Purpose, StreamKey};
 use crate::resume::Checkpointer;
 use crate::run_config::TrainConfig;
+use crate::schedule::Schedule;
 use crate::session::{make_options, probe_spec};
 use crate::solve::SolveRecord;
 use crate::video::{VideoPlan, VideoReport};
@@ -52,7 +54,7 @@ mod videos;
 
 use finish::{FinalEvaluation, final_evaluation, write_reports};
 use progress::{progress_bar, spawn_ticker};
-use setup::{Opened, open_run, schedule_for, snippet_layout};
+use setup::{Opened, OpenedRun, open_population, schedule_for, snippet_layout};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -169,22 +171,50 @@ pub async fn train(
     addresses: &[String],
     options: TrainOptions,
 ) -> Result<TrainSummary, TrainError> {
+    let mut summaries = train_population(vec![cfg], addresses, options).await?;
+    Ok(summaries.swap_remove(0))
+}
+
+/// One member's run: its folder, files, schedule and published policy.
+struct MemberRun {
+    cfg: TrainConfig,
+    run_dir: PathBuf,
+    files: Arc<RunFiles>,
+    schedule: Arc<Schedule>,
+    params: watch::Receiver<Arc<PolicySnapshot>>,
+    latest: Arc<Mutex<Option<LearnerStats>>>,
+    first_acts: Vec<u64>,
+}
+
+/// Train the runs `cfgs` as one population (DESIGN.md "Populations"): one learner
+/// whose members are the runs (`Learner::population`), one env session of P x B
+/// instances per actor, and a folder per run exactly as `train` writes it. The configs
+/// must agree on everything but their seeds, ε and scalarization weights
+/// ([`TrainConfig::population_key`]); a population of more than one is new (no
+/// `resume`, no periodic videos). Summaries in `cfgs`' order.
+pub async fn train_population(
+    cfgs: Vec<TrainConfig>,
+    addresses: &[String],
+    options: TrainOptions,
+) -> Result<Vec<TrainSummary>, TrainError> {
     let started = Instant::now();
+    check_population_run(&cfgs, &options)?;
+    let cfg = cfgs[0].clone();
     configure_threads(cfg.learner.num_threads);
     let servers = Arc::new(ServerPool::connect(addresses, &cfg.env.connection).await?);
     let spec = probe_spec(&servers.first().client, &cfg).await?;
     let dims =
         LearnerDims::from_spec(&spec)?.with_preference_features(cfg.learner.preference_features());
-    check_declared(&cfg.learner, &spec.objectives)?;
+    for c in &cfgs {
+        check_declared(&c.learner, &spec.objectives)?;
+    }
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
     let device = choose_device(&cfg.learner, &dims)?;
     let Opened {
-        run_dir,
+        runs: opened,
         learner,
-        counters,
-        resumed,
-    } = open_run(&cfg, options.resume.as_deref(), &dims, device)?;
+    } = open_population(&cfgs, options.resume.as_deref(), &dims, device)?;
     let grid = learner.preference_grid().cloned().map(Arc::new);
     let conditioned: Vec<String> = grid.as_ref().map_or_else(Vec::new, |g| {
         g.conditioned_names()
@@ -192,49 +222,99 @@ pub async fn train(
             .map(String::from)
             .collect()
     });
-    let files =
-        Arc::new(RunFiles::open(&run_dir, &objectives, &conditioned).map_err(io(&run_dir))?);
     let layout = snippet_layout(&cfg, &dims, objectives.len());
-    let first_acts: Vec<u64> = counters.actors.iter().map(|a| a.acts).collect();
-    let schedule = Arc::new(schedule_for(
-        &cfg,
-        layout,
-        &objectives,
-        counters,
-        &run_dir,
-        resumed.as_ref(),
-    )?);
-    let segments_end = resumed
-        .as_ref()
-        .and_then(|p| p.replay.as_ref())
-        .map_or(0, |r| r.inserted);
-    let (params_tx, params_rx) = watch::channel(Arc::new(learner.policy_snapshot()));
-    let latest = Arc::new(Mutex::new(None));
+    let mut runs = Vec::with_capacity(cfgs.len());
+    let mut loops = Vec::with_capacity(cfgs.len());
+    for (p, (member_cfg, opened)) in cfgs.iter().zip(opened).enumerate() {
+        let OpenedRun {
+            run_dir,
+            counters,
+            resumed,
+        } = opened;
+        let files =
+            Arc::new(RunFiles::open(&run_dir, &objectives, &conditioned).map_err(io(&run_dir))?);
+        let first_acts: Vec<u64> = counters.actors.iter().map(|a| a.acts).collect();
+        let schedule = Arc::new(schedule_for(
+            member_cfg,
+            layout,
+            &objectives,
+            counters,
+            &run_dir,
+            resumed.as_ref(),
+        )?);
+        let segments_end = resumed
+            .as_ref()
+            .and_then(|r| r.replay.as_ref())
+            .map_or(0, |r| r.inserted);
+        let (params_tx, params_rx) = watch::channel(Arc::new(learner.member_policy_snapshot(p)));
+        let latest = Arc::new(Mutex::new(None));
+        loops.push(MemberLoop {
+            schedule: schedule.clone(),
+            params: params_tx,
+            files: files.clone(),
+            latest: latest.clone(),
+            checkpointer: Checkpointer::new(
+                files.clone(),
+                member_cfg.run.checkpoint_replay,
+                segments_end,
+            )
+            .for_member(p),
+        });
+        runs.push(MemberRun {
+            cfg: member_cfg.clone(),
+            run_dir,
+            files,
+            schedule,
+            params: params_rx,
+            latest,
+            first_acts,
+        });
+    }
 
     let learner_thread = {
         let ctx = LearnerContext {
             learner,
-            schedule: schedule.clone(),
-            params: params_tx,
-            files: files.clone(),
+            members: loops,
             publish_period: cfg.run.publish_period,
             checkpoint_period: cfg.run.checkpoint_period,
             log_period: cfg.run.log_period,
-            latest: latest.clone(),
-            checkpointer: Checkpointer::new(files.clone(), cfg.run.checkpoint_replay, segments_end),
         };
         std::thread::Builder::new()
             .name("learner".into())
             .spawn(move || run_learner(ctx))
-            .map_err(io(&run_dir))?
+            .map_err(io(&runs[0].run_dir))?
+    };
+    let stop_all = {
+        let schedules: Vec<Arc<Schedule>> = runs.iter().map(|r| r.schedule.clone()).collect();
+        move |reason: Option<String>| {
+            for s in &schedules {
+                s.stop(reason.clone());
+            }
+        }
     };
 
     let mut actors = Vec::new();
     for a in 0..cfg.env.num_actors {
-        let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
-        policy
-            .load(&params_rx.borrow())
-            .map_err(|e| TrainError::Stopped(e.to_string()))?;
+        let mut members = Vec::with_capacity(runs.len());
+        for run in &runs {
+            let mut policy = ActorPolicy::new(&run.cfg.learner.network, &dims, Device::Cpu);
+            policy
+                .load(&run.params.borrow())
+                .map_err(|e| TrainError::Stopped(e.to_string()))?;
+            let seed = run.cfg.seed;
+            members.push(ActorMember {
+                policy,
+                sampling: StreamKey::new(seed, Purpose::Acting, a as u64),
+                first_seed: seed + 1000 * a as u64,
+                env_seeds: StreamKey::new(seed, Purpose::EnvSeeds, a as u64),
+                params: run.params.clone(),
+                schedule: run.schedule.clone(),
+                files: run.files.clone(),
+                preferences: grid
+                    .clone()
+                    .map(|g| (g, StreamKey::new(seed, Purpose::ActingPreference, a as u64))),
+            });
+        }
         let ctx = ActorContext {
             id: a,
             server: servers.assign(a),
@@ -243,30 +323,19 @@ pub async fn train(
                 num_workers: cfg.env.workers,
                 ..make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64)
             },
-            policy,
-            sampling: StreamKey::new(cfg.seed, Purpose::Acting, a as u64),
-            first_act: first_acts.get(a).copied().unwrap_or(0),
-            env_seeds: StreamKey::new(cfg.seed, Purpose::EnvSeeds, a as u64),
-            params: params_rx.clone(),
+            members,
+            first_act: runs[0].first_acts.get(a).copied().unwrap_or(0),
             layout,
-            schedule: schedule.clone(),
-            files: files.clone(),
             total_env_steps: cfg.run.total_env_steps,
-            preferences: grid.clone().map(|g| {
-                (
-                    g,
-                    StreamKey::new(cfg.seed, Purpose::ActingPreference, a as u64),
-                )
-            }),
         };
-        let schedule = schedule.clone();
+        let stop_all = stop_all.clone();
         actors.push(tokio::spawn(async move {
             // A panic stops the run as an error does, at once and with its message:
             // the other actors and the learner stop, and the run exits non-zero.
             match AssertUnwindSafe(run_actor(ctx)).catch_unwind().await {
                 Ok(Ok(())) => {}
-                Ok(Err(e)) => schedule.stop(Some(format!("actor {a}: {e}"))),
-                Err(panic) => schedule.stop(Some(format!(
+                Ok(Err(e)) => stop_all(Some(format!("actor {a}: {e}"))),
+                Err(panic) => stop_all(Some(format!(
                     "actor {a} panicked: {}",
                     panic_message(panic.as_ref())
                 ))),
@@ -274,96 +343,170 @@ pub async fn train(
         }));
     }
 
-    let videos = options.video.as_ref().and_then(|plan| {
-        let ctx = PeriodicContext {
-            client: servers.first().client,
-            cfg: cfg.clone(),
-            dims: dims.clone(),
-            preference: grid.as_deref().map(PreferenceGrid::default_features),
-            params: params_rx.clone(),
-            schedule: schedule.clone(),
-            dir: run_dir.join("videos"),
-        };
-        let every = plan.every?;
-        Some(tokio::spawn(record_periodically(
-            ctx,
-            every,
-            plan.options.clone(),
-        )))
-    });
+    // Periodic videos follow a single run's policy.
+    let videos = options
+        .video
+        .as_ref()
+        .filter(|_| runs.len() == 1)
+        .and_then(|plan| {
+            let run = &runs[0];
+            let ctx = PeriodicContext {
+                client: servers.first().client,
+                cfg: cfg.clone(),
+                dims: dims.clone(),
+                preference: grid.as_deref().map(PreferenceGrid::default_features),
+                params: run.params.clone(),
+                schedule: run.schedule.clone(),
+                dir: run.run_dir.join("videos"),
+            };
+            let every = plan.every?;
+            Some(tokio::spawn(record_periodically(
+                ctx,
+                every,
+                plan.options.clone(),
+            )))
+        });
 
-    let bar = progress_bar(options.progress, &cfg, &schedule);
-    let ticker = spawn_ticker(
-        schedule.clone(),
-        latest.clone(),
-        bar.clone(),
-        objectives.clone(),
-    );
+    let mut bars = Vec::new();
+    let mut tickers = Vec::new();
+    for run in &runs {
+        let bar = progress_bar(options.progress && runs.len() == 1, &cfg, &run.schedule);
+        tickers.push(spawn_ticker(
+            run.schedule.clone(),
+            run.latest.clone(),
+            bar.clone(),
+            objectives.clone(),
+        ));
+        bars.push(bar);
+    }
 
     for actor in actors {
         // The task itself catches panics; a join error is a cancelled runtime.
         if let Err(e) = actor.await {
-            schedule.stop(Some(format!("an actor task ended abnormally: {e}")));
+            stop_all(Some(format!("an actor task ended abnormally: {e}")));
         }
     }
-    schedule.stop(None);
-    ticker.abort();
+    stop_all(None);
+    for ticker in tickers {
+        ticker.abort();
+    }
     if let Some(videos) = videos {
         videos.abort(); // a video in progress is cut short (its file may be incomplete)
     }
-    let learner = tokio::task::spawn_blocking(move || learner_thread.join())
+    let done = tokio::task::spawn_blocking(move || learner_thread.join())
         .await
         .map_err(|e| TrainError::Stopped(e.to_string()))?
         .map_err(|_| TrainError::Stopped("the learner thread panicked".into()))?;
-    bar.finish_and_clear();
-    let counters = schedule.counters();
-    if let Some(error) = counters.error.clone() {
-        // The learner wrote a final checkpoint before returning.
-        let _ = learner;
+    for bar in bars {
+        bar.finish_and_clear();
+    }
+    if let Some(error) = runs.iter().find_map(|r| r.schedule.counters().error) {
+        // The learner wrote a final checkpoint of every member before returning.
         return Err(TrainError::Stopped(error));
     }
-    let learner = learner?;
-
-    let snapshot = learner.policy_snapshot();
+    let LearnerDone { learner, policies } = done?;
     drop(learner);
-    let mut policy = ActorPolicy::new(&cfg.learner.network, &dims, Device::Cpu);
+
+    let mut summaries = Vec::with_capacity(runs.len());
+    for (run, snapshot) in runs.iter().zip(policies) {
+        summaries.push(
+            finish_member(
+                run,
+                &snapshot,
+                &servers,
+                &dims,
+                grid.as_deref(),
+                &options,
+                (&objectives, spec.discount, device, started),
+            )
+            .await?,
+        );
+    }
+    Ok(summaries)
+}
+
+/// A population of more than one must be new and without periodic videos; its
+/// members must share their population key.
+fn check_population_run(cfgs: &[TrainConfig], options: &TrainOptions) -> Result<(), TrainError> {
+    let Some(first) = cfgs.first() else {
+        return Err(TrainError::Stopped("a population needs a run".into()));
+    };
+    if cfgs.len() == 1 {
+        return Ok(());
+    }
+    if options.resume.is_some() {
+        return Err(TrainError::Stopped(
+            "--resume continues one run; a population's members resume as single runs".into(),
+        ));
+    }
+    let key = first.population_key();
+    for (p, c) in cfgs.iter().enumerate().skip(1) {
+        if c.population_key() != key {
+            return Err(ConfigError::Invalid {
+                field: format!("population member {p}"),
+                requirement: "the first member's run config except seed, ε, \
+                              scalarization weights and runs_dir"
+                    .into(),
+                got: "a run config that differs elsewhere".into(),
+            }
+            .into());
+        }
+    }
+    let learners: Vec<_> = cfgs.iter().map(|c| c.learner.clone()).collect();
+    crate::algo::population::check_population(&learners)?;
+    Ok(())
+}
+
+/// A member's final evaluation (its own policy), conditioned front and reports.
+async fn finish_member(
+    run: &MemberRun,
+    snapshot: &PolicySnapshot,
+    servers: &Arc<ServerPool>,
+    dims: &LearnerDims,
+    grid: Option<&PreferenceGrid>,
+    options: &TrainOptions,
+    (objectives, discount, device, started): (&[String], f64, Device, Instant),
+) -> Result<TrainSummary, TrainError> {
+    let cfg = &run.cfg;
+    let counters = run.schedule.counters();
+    let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
     policy
-        .load(&snapshot)
+        .load(snapshot)
         .map_err(|e| TrainError::Stopped(e.to_string()))?;
-    if let Some(grid) = &grid {
+    if let Some(grid) = grid {
         policy = policy.at_preference(&grid.default_features());
     }
     let FinalEvaluation {
         episodes: eval,
         video: eval_video,
     } = final_evaluation(
-        &cfg,
-        &servers,
+        cfg,
+        servers,
         policy,
         counters.interrupted.is_some(),
         options.video.as_ref(),
-        &run_dir,
+        &run.run_dir,
     )
     .await?;
-    let front = match &grid {
+    let front = match grid {
         Some(grid) if counters.interrupted.is_none() => Some(
             front::conditioned_front(
-                &cfg,
-                &servers,
+                cfg,
+                servers,
                 grid,
-                &dims,
-                &snapshot,
-                objectives.clone(),
-                &run_dir,
+                dims,
+                snapshot,
+                objectives.to_vec(),
+                &run.run_dir,
             )
             .await?,
         ),
         _ => None,
     };
-    let stats = latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    let stats = run.latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let summary = TrainSummary {
-        run_dir: run_dir.clone(),
-        objectives: objectives.clone(),
+        run_dir: run.run_dir.clone(),
+        objectives: objectives.to_vec(),
         env_steps: counters.env_steps,
         learner_steps: counters.learner_steps,
         episodes: counters.episodes,
@@ -372,17 +515,17 @@ pub async fn train(
         temperature: stats.map(|s| s.temperature).unwrap_or_default(),
         eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
         eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
-        eval_discount: spec.discount,
+        eval_discount: discount,
         eval_episodes: eval,
         learner_device: format!("{device:?}"),
         solve_threshold: cfg.run.solve_threshold.clone(),
-        solved: schedule.solved(),
+        solved: run.schedule.solved(),
         interrupted: counters.interrupted.clone(),
         eval_video,
         actor_servers: servers.actor_servers(),
         front,
     };
-    write_reports(&summary, &files)?;
+    write_reports(&summary, &run.files)?;
     Ok(summary)
 }
 

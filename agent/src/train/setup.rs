@@ -19,50 +19,64 @@ use crate::run_name;
 use crate::schedule::{Counters, Pace, Schedule};
 use crate::solve::SolveTracker;
 
-/// The run directory, its learner and the counters it starts from.
-pub(super) struct Opened {
+/// One member's run directory and the counters it starts from.
+pub(super) struct OpenedRun {
     pub run_dir: PathBuf,
-    pub learner: Learner,
     /// Zero for a new run; the checkpoint's progress when resuming.
     pub counters: Counters,
     /// The checkpoint resumed from.
     pub resumed: Option<RunProgress>,
 }
 
-/// A new run directory holding the resolved `config.toml`, or, with `resume`, that
-/// directory's latest checkpoint.
-pub(super) fn open_run(
-    cfg: &TrainConfig,
+/// The members' runs and their learner.
+pub(super) struct Opened {
+    pub runs: Vec<OpenedRun>,
+    pub learner: Learner,
+}
+
+/// A new run directory holding the resolved `config.toml` per member, or, with
+/// `resume` (one member), that directory's latest checkpoint.
+pub(super) fn open_population(
+    cfgs: &[TrainConfig],
     resume: Option<&Path>,
     dims: &LearnerDims,
     device: Device,
 ) -> Result<Opened, TrainError> {
-    if let Some(dir) = resume {
+    if let (Some(dir), [cfg]) = (resume, cfgs) {
         let Reopened { learner, progress } = open_checkpoint(dir, device)?;
         // The run's config as this invocation changed it (`--set` of the fields a
         // running run may change), for the next resume.
         write_config(dir, cfg)?;
         return Ok(Opened {
-            run_dir: dir.to_path_buf(),
+            runs: vec![OpenedRun {
+                run_dir: dir.to_path_buf(),
+                counters: Counters {
+                    env_steps: progress.env_steps,
+                    learner_steps: progress.learner_steps,
+                    episodes: progress.episodes,
+                    recent_returns: progress.recent_returns.iter().cloned().collect(),
+                    actors: progress.actors.clone(),
+                    ..Counters::default()
+                },
+                resumed: Some(progress),
+            }],
             learner,
-            counters: Counters {
-                env_steps: progress.env_steps,
-                learner_steps: progress.learner_steps,
-                episodes: progress.episodes,
-                recent_returns: progress.recent_returns.iter().cloned().collect(),
-                actors: progress.actors.clone(),
-                ..Counters::default()
-            },
-            resumed: Some(progress),
         });
     }
-    let dir = new_run_dir(cfg)?;
-    write_config(&dir, cfg)?;
+    let mut runs = Vec::with_capacity(cfgs.len());
+    for cfg in cfgs {
+        let dir = new_run_dir(cfg)?;
+        write_config(&dir, cfg)?;
+        runs.push(OpenedRun {
+            run_dir: dir,
+            counters: Counters::default(),
+            resumed: None,
+        });
+    }
+    let learners = cfgs.iter().map(|c| c.learner.clone()).collect();
     Ok(Opened {
-        run_dir: dir,
-        learner: Learner::new(cfg.learner.clone(), dims.clone(), device)?,
-        counters: Counters::default(),
-        resumed: None,
+        runs,
+        learner: Learner::population(learners, dims.clone(), device)?,
     })
 }
 
