@@ -275,6 +275,10 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                 if n % checkpoint_period == 0 {
                     m.run.checkpointer.save(&learner, &m.run.schedule)?;
                 }
+            }
+            // Only now may actors act again: every member's policy of this step is
+            // published, so none acts with the previous one by a race.
+            for m in members.iter().filter(|m| m.done.is_none()) {
                 m.run.schedule.learner_stepped();
             }
         }

@@ -203,18 +203,7 @@ fn continuous_members(change: impl Fn(&mut LearnerConfig)) -> Vec<LearnerConfig>
         .map(|(seed, eps)| {
             let mut cfg = small_config();
             cfg.seed = seed;
-            cfg.objectives = vec![
-                ObjectiveConfig {
-                    name: "task".into(),
-                    epsilon: 0.1,
-                    source: ObjectiveSource::Learned,
-                },
-                ObjectiveConfig {
-                    name: "action_norm".into(),
-                    epsilon: eps,
-                    source: ObjectiveSource::ActionNorm,
-                },
-            ];
+            cfg.objectives = common::task_and_action_norm(eps);
             change(&mut cfg);
             cfg
         })

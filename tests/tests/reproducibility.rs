@@ -174,13 +174,19 @@ async fn a_population_member_matches_the_same_run_alone() {
             cfg
         })
         .collect();
-    let population = train_population(
-        members.clone(),
-        &[server.address().to_string()],
-        TrainOptions::default(),
-    )
-    .await
-    .unwrap();
+    let addresses = [server.address().to_string()];
+    let train_members = || train_population(members.clone(), &addresses, TrainOptions::default());
+    let population = train_members().await.unwrap();
+    // The same population again gives every member the same curve, bit for bit: all
+    // members' policies are published before actors act on any of them.
+    let again = train_members().await.unwrap();
+    for (p, (a, b)) in population.iter().zip(&again).enumerate() {
+        assert_eq!(
+            curve(&a.run_dir),
+            curve(&b.run_dir),
+            "member {p}: the same population twice differs"
+        );
+    }
     for (p, (cfg, summary)) in members.into_iter().zip(&population).enumerate() {
         let member = curve(&summary.run_dir);
         let alone = run(cfg, &server).await;

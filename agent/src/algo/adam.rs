@@ -90,15 +90,19 @@ impl Adam {
         }
     }
 
+    /// The parameters' gradients that are defined (a parameter no loss reached has none).
+    fn gradients(&self) -> Vec<Tensor> {
+        self.params
+            .iter()
+            .map(|(_, p)| p.grad())
+            .filter(Tensor::defined)
+            .collect()
+    }
+
     /// Scales gradients so their global L2 norm is at most `max`; returns the norm before.
     pub fn clip_grad_norm(&self, max: f64) -> f64 {
         tch::no_grad(|| {
-            let grads: Vec<Tensor> = self
-                .params
-                .iter()
-                .map(|(_, p)| p.grad())
-                .filter(Tensor::defined)
-                .collect();
+            let grads = self.gradients();
             if grads.is_empty() {
                 return 0.0;
             }
@@ -125,12 +129,7 @@ impl Adam {
             return;
         }
         tch::no_grad(|| {
-            let grads: Vec<Tensor> = self
-                .params
-                .iter()
-                .map(|(_, p)| p.grad())
-                .filter(Tensor::defined)
-                .collect();
+            let grads = self.gradients();
             let Some(first) = grads.first() else {
                 return;
             };

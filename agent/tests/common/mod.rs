@@ -50,18 +50,7 @@ pub fn continuous_learner() -> Learner {
 pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> Learner {
     let mut cfg = small_config();
     change(&mut cfg);
-    cfg.objectives = vec![
-        ObjectiveConfig {
-            name: "task".into(),
-            epsilon: 0.1,
-            source: ObjectiveSource::Learned,
-        },
-        ObjectiveConfig {
-            name: "action_norm".into(),
-            epsilon: 0.01,
-            source: ObjectiveSource::ActionNorm,
-        },
-    ];
+    cfg.objectives = task_and_action_norm(0.01);
     let dims = LearnerDims {
         action_bounds: None,
         obs_dim: OBS,
@@ -70,6 +59,22 @@ pub fn continuous_learner_with(change: impl FnOnce(&mut LearnerConfig)) -> Learn
         obs_leaves: Vec::new(),
     };
     Learner::new(cfg, dims, Device::Cpu).unwrap()
+}
+
+/// `task` learned with ε 0.1, `action_norm` in closed form with `action_norm_epsilon`.
+pub fn task_and_action_norm(action_norm_epsilon: f64) -> Vec<ObjectiveConfig> {
+    vec![
+        ObjectiveConfig {
+            name: "task".into(),
+            epsilon: 0.1,
+            source: ObjectiveSource::Learned,
+        },
+        ObjectiveConfig {
+            name: "action_norm".into(),
+            epsilon: action_norm_epsilon,
+            source: ObjectiveSource::ActionNorm,
+        },
+    ]
 }
 
 /// Discrete scalarized MPO with one-step TD (A.2 settings).
