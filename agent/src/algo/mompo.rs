@@ -95,9 +95,11 @@ pub fn real_states(valid: &Tensor, discounts: &Tensor) -> RealStates {
         .narrow(1, 0, widest);
     let position = Tensor::arange(widest, (Kind::Int64, valid.device())).unsqueeze(0);
     let counted = position.lt_tensor(&counts).to_kind(Kind::Float);
+    // Every snippet has a real first step, so no member counts 0; the floor keeps a
+    // malformed batch from dividing by it.
     RealStates {
         index: Some(index),
-        weight: counted / counts.to_kind(Kind::Float),
+        weight: counted / counts.clamp_min(1).to_kind(Kind::Float),
     }
 }
 
