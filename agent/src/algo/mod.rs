@@ -11,6 +11,7 @@ pub mod adam;
 pub mod batch;
 pub mod dual;
 pub mod estep;
+pub mod members;
 pub mod mompo;
 pub mod movmpo;
 pub mod mstep;

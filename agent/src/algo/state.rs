@@ -28,10 +28,9 @@ use super::preferences::{Conditioned, PreferenceGrid};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
-use crate::nets::snapshot::named_member_arrays;
 use crate::nets::{
-    ActOutput, Acting, ActionKind, Members, MultiCritic, NamedArray, Policy, PolicySnapshot,
-    SnapshotError, ValueNet,
+    ActOutput, Acting, ActionKind, Members, MultiCritic, Policy, PolicySnapshot, SnapshotError,
+    ValueNet,
 };
 use crate::random::{Purpose, RandomStream, StreamKey, seeded_init};
 use std::cell::Cell;
@@ -451,31 +450,6 @@ impl Learner {
     /// Copy of the online policy parameters for actors.
     pub fn policy_snapshot(&self) -> PolicySnapshot {
         self.member_policy_snapshot(0)
-    }
-
-    /// Member `member`'s online policy parameters, as one network's.
-    pub fn member_policy_snapshot(&self, member: usize) -> PolicySnapshot {
-        PolicySnapshot {
-            tensors: named_member_arrays(&self.policy_vs, self.members, member as i64),
-        }
-    }
-
-    /// Member `member`'s online policy and critic parameters with one network's names
-    /// and shapes (`parameters` of a learner of one member), sorted by name.
-    pub fn member_parameters(&self, member: usize) -> Vec<NamedArray> {
-        let member = member as i64;
-        let mut params = named_member_arrays(&self.policy_vs, self.members, member);
-        params.extend(named_member_arrays(&self.critic_vs, self.members, member));
-        params
-    }
-
-    /// Member `member`'s duals: eta_k, then every trust-region multiplier.
-    pub fn member_duals(&self, member: usize) -> (Vec<f32>, Vec<f32>) {
-        let pick = |t: &Tensor| to_vec(&self.members.view(t, member as i64, 1));
-        (
-            pick(&self.duals.temperature()),
-            pick(&self.duals.alpha().flatten(-2, -1)),
-        )
     }
 
     /// One learner step of the configured algorithm on B sequences of T steps (a

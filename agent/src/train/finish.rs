@@ -3,14 +3,22 @@
 //! interrupted run leaves: evaluation scalars, `summary.json` and the curves.
 
 use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use tch::Device;
 
 use super::curves::plot_curves;
-use super::{TrainError, TrainSummary, io};
+use super::{MemberRun, TrainError, TrainOptions, TrainSummary, front, io};
+use crate::algo::objectives::LearnerDims;
+use crate::algo::preferences::PreferenceGrid;
 use crate::env::EpisodeSummary;
 use crate::env::pool::ServerPool;
 use crate::eval::{evaluate, evaluate_recorded};
+use crate::metrics::mean_of;
 use crate::metrics::{RunFiles, write_json_atomic};
 use crate::nets::ActorPolicy;
+use crate::nets::PolicySnapshot;
 use crate::run_config::TrainConfig;
 use crate::video::{VideoPlan, VideoReport};
 
@@ -73,4 +81,76 @@ pub(super) fn write_reports(summary: &TrainSummary, files: &RunFiles) -> Result<
     write_json_atomic(&run_dir.join("summary.json"), summary).map_err(io(run_dir))?;
     plot_curves(run_dir, &summary.objectives)?;
     Ok(())
+}
+
+/// A member's final evaluation (its own policy), conditioned front and reports.
+pub(super) async fn finish_member(
+    run: &MemberRun,
+    snapshot: &PolicySnapshot,
+    servers: &Arc<ServerPool>,
+    dims: &LearnerDims,
+    grid: Option<&PreferenceGrid>,
+    options: &TrainOptions,
+    (objectives, discount, device, started): (&[String], f64, Device, Instant),
+) -> Result<TrainSummary, TrainError> {
+    let cfg = &run.cfg;
+    let counters = run.schedule.counters();
+    let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
+    policy
+        .load(snapshot)
+        .map_err(|e| TrainError::Stopped(e.to_string()))?;
+    if let Some(grid) = grid {
+        policy = policy.at_preference(&grid.default_features());
+    }
+    let FinalEvaluation {
+        episodes: eval,
+        video: eval_video,
+    } = final_evaluation(
+        cfg,
+        servers,
+        policy,
+        counters.interrupted.is_some(),
+        options.video.as_ref(),
+        &run.run_dir,
+    )
+    .await?;
+    let front = match grid {
+        Some(grid) if counters.interrupted.is_none() => Some(
+            front::conditioned_front(
+                cfg,
+                servers,
+                grid,
+                dims,
+                snapshot,
+                objectives.to_vec(),
+                &run.run_dir,
+            )
+            .await?,
+        ),
+        _ => None,
+    };
+    let stats = run.latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    let summary = TrainSummary {
+        run_dir: run.run_dir.clone(),
+        objectives: objectives.to_vec(),
+        env_steps: counters.env_steps,
+        learner_steps: counters.learner_steps,
+        episodes: counters.episodes,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        recent_train_return: counters.recent_mean_return(),
+        temperature: stats.map(|s| s.temperature).unwrap_or_default(),
+        eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
+        eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
+        eval_discount: discount,
+        eval_episodes: eval,
+        learner_device: format!("{device:?}"),
+        solve_threshold: cfg.run.solve_threshold.clone(),
+        solved: run.schedule.solved(),
+        interrupted: counters.interrupted.clone(),
+        eval_video,
+        actor_servers: servers.actor_servers(),
+        front,
+    };
+    write_reports(&summary, &run.files)?;
+    Ok(summary)
 }

@@ -8,9 +8,13 @@
 //! writes a checkpoint and the run still writes its summary (marked `interrupted`, no
 //! evaluation), curves and TensorBoard events; a second Ctrl-C exits at once.
 //!
-//! `setup` opens the run and builds its schedule, `progress` draws the bar and takes
-//! the signals, `finish` evaluates and writes the reports; this module starts the
-//! actors and the learner and waits for them.
+//! `train_population` trains P runs as one population (DESIGN.md "Populations"): one
+//! learner of P members, actors with one env session for all of them, and a folder
+//! per run as `train` writes it; `train` is a population of one.
+//!
+//! `setup` opens the runs and builds their schedules, `progress` draws the bar and
+//! takes the signals, `finish` evaluates and writes the reports; this module starts
+//! the actors and the learner and waits for them.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -31,7 +35,7 @@ use crate::env::{EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
 use crate::front::FrontSummary;
 use crate::learner::{LearnerContext, LearnerDone, LearnerLoopError, MemberLoop, run_learner};
-use crate::metrics::{RunFiles, mean_of};
+use crate::metrics::RunFiles;
 use crate::nets::{ActorPolicy, PolicySnapshot};
 use crate::plot::PlotError;
 use crate::random::{Purpose, StreamKey};
@@ -52,9 +56,11 @@ mod progress;
 mod setup;
 mod videos;
 
-use finish::{FinalEvaluation, final_evaluation, write_reports};
+use finish::finish_member;
 use progress::{progress_bar, spawn_ticker};
-use setup::{Opened, OpenedRun, open_population, schedule_for, snippet_layout};
+use setup::{
+    Opened, OpenedRun, check_population_run, open_population, schedule_for, snippet_layout,
+};
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -423,110 +429,6 @@ pub async fn train_population(
         );
     }
     Ok(summaries)
-}
-
-/// A population of more than one must be new and without periodic videos; its
-/// members must share their population key.
-fn check_population_run(cfgs: &[TrainConfig], options: &TrainOptions) -> Result<(), TrainError> {
-    let Some(first) = cfgs.first() else {
-        return Err(TrainError::Stopped("a population needs a run".into()));
-    };
-    if cfgs.len() == 1 {
-        return Ok(());
-    }
-    if options.resume.is_some() {
-        return Err(TrainError::Stopped(
-            "--resume continues one run; a population's members resume as single runs".into(),
-        ));
-    }
-    let key = first.population_key();
-    for (p, c) in cfgs.iter().enumerate().skip(1) {
-        if c.population_key() != key {
-            return Err(ConfigError::Invalid {
-                field: format!("population member {p}"),
-                requirement: "the first member's run config except seed, ε, \
-                              scalarization weights and runs_dir"
-                    .into(),
-                got: "a run config that differs elsewhere".into(),
-            }
-            .into());
-        }
-    }
-    let learners: Vec<_> = cfgs.iter().map(|c| c.learner.clone()).collect();
-    crate::algo::population::check_population(&learners)?;
-    Ok(())
-}
-
-/// A member's final evaluation (its own policy), conditioned front and reports.
-async fn finish_member(
-    run: &MemberRun,
-    snapshot: &PolicySnapshot,
-    servers: &Arc<ServerPool>,
-    dims: &LearnerDims,
-    grid: Option<&PreferenceGrid>,
-    options: &TrainOptions,
-    (objectives, discount, device, started): (&[String], f64, Device, Instant),
-) -> Result<TrainSummary, TrainError> {
-    let cfg = &run.cfg;
-    let counters = run.schedule.counters();
-    let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
-    policy
-        .load(snapshot)
-        .map_err(|e| TrainError::Stopped(e.to_string()))?;
-    if let Some(grid) = grid {
-        policy = policy.at_preference(&grid.default_features());
-    }
-    let FinalEvaluation {
-        episodes: eval,
-        video: eval_video,
-    } = final_evaluation(
-        cfg,
-        servers,
-        policy,
-        counters.interrupted.is_some(),
-        options.video.as_ref(),
-        &run.run_dir,
-    )
-    .await?;
-    let front = match grid {
-        Some(grid) if counters.interrupted.is_none() => Some(
-            front::conditioned_front(
-                cfg,
-                servers,
-                grid,
-                dims,
-                snapshot,
-                objectives.to_vec(),
-                &run.run_dir,
-            )
-            .await?,
-        ),
-        _ => None,
-    };
-    let stats = run.latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
-    let summary = TrainSummary {
-        run_dir: run.run_dir.clone(),
-        objectives: objectives.to_vec(),
-        env_steps: counters.env_steps,
-        learner_steps: counters.learner_steps,
-        episodes: counters.episodes,
-        wall_seconds: started.elapsed().as_secs_f64(),
-        recent_train_return: counters.recent_mean_return(),
-        temperature: stats.map(|s| s.temperature).unwrap_or_default(),
-        eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
-        eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
-        eval_discount: discount,
-        eval_episodes: eval,
-        learner_device: format!("{device:?}"),
-        solve_threshold: cfg.run.solve_threshold.clone(),
-        solved: run.schedule.solved(),
-        interrupted: counters.interrupted.clone(),
-        eval_video,
-        actor_servers: servers.actor_servers(),
-        front,
-    };
-    write_reports(&summary, &run.files)?;
-    Ok(summary)
 }
 
 /// The text of a caught panic (`panic!` with a message gives a `&str` or a `String`).

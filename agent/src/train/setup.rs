@@ -7,10 +7,11 @@ use std::time::SystemTime;
 
 use tch::Device;
 
-use super::{TrainError, io};
+use super::{TrainError, TrainOptions, io};
 use crate::algo::Learner;
 use crate::algo::objectives::LearnerDims;
 use crate::checkpoint::run::{PaceOrigin, RunProgress};
+use crate::config::ConfigError;
 use crate::nets::ActionKind;
 use crate::replay::{SnippetLayout, SnippetReplay};
 use crate::resume::{Reopened, open_checkpoint, restore_schedule};
@@ -169,4 +170,39 @@ fn new_run_dir(cfg: &TrainConfig) -> Result<PathBuf, TrainError> {
     let stem = format!("{task}__{}__{}", cfg.algo_name(), cfg.seed);
     run_name::create_run_dir(&cfg.run.runs_dir, &stem, SystemTime::now())
         .map_err(io(&cfg.run.runs_dir))
+}
+
+/// A population of more than one must be new and without periodic videos; its
+/// members must share their population key.
+pub(super) fn check_population_run(
+    cfgs: &[TrainConfig],
+    options: &TrainOptions,
+) -> Result<(), TrainError> {
+    let Some(first) = cfgs.first() else {
+        return Err(TrainError::Stopped("a population needs a run".into()));
+    };
+    if cfgs.len() == 1 {
+        return Ok(());
+    }
+    if options.resume.is_some() {
+        return Err(TrainError::Stopped(
+            "--resume continues one run; a population's members resume as single runs".into(),
+        ));
+    }
+    let key = first.population_key();
+    for (p, c) in cfgs.iter().enumerate().skip(1) {
+        if c.population_key() != key {
+            return Err(ConfigError::Invalid {
+                field: format!("population member {p}"),
+                requirement: "the first member's run config except seed, ε, \
+                              scalarization weights and runs_dir"
+                    .into(),
+                got: "a run config that differs elsewhere".into(),
+            }
+            .into());
+        }
+    }
+    let learners: Vec<_> = cfgs.iter().map(|c| c.learner.clone()).collect();
+    crate::algo::population::check_population(&learners)?;
+    Ok(())
 }
