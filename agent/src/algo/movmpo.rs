@@ -32,8 +32,8 @@
 
 use super::batch::SnippetBatch;
 use super::estep::{StateMean, advantage_estep};
-use super::mompo::masked_half_mse;
 use super::objectives::QSource;
+use super::real_states::masked_half_mse;
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since};
 use super::update::StepMeasures;
 use crate::nets::PolicyOutput;

@@ -21,6 +21,8 @@ use super::adam::{Adam, AdamConfig};
 use super::batch::{BatchError, SnippetBatch};
 use super::dual::Duals;
 use super::mstep::KlConstraint;
+pub(crate) use super::networks::Critics;
+use super::networks::{Networks, build_networks};
 use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
 use super::population::check_population;
@@ -28,10 +30,7 @@ use super::preferences::{Conditioned, PreferenceGrid};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::device::synchronize;
-use crate::nets::{
-    ActOutput, Acting, ActionKind, Members, MultiCritic, Policy, PolicySnapshot, SnapshotError,
-    ValueNet,
-};
+use crate::nets::{ActOutput, Acting, ActionKind, Members, Policy, PolicySnapshot, SnapshotError};
 use crate::random::{Purpose, RandomStream, StreamKey, seeded_init};
 use std::cell::Cell;
 use std::time::Instant;
@@ -55,74 +54,6 @@ pub enum LearnerError {
     /// Given parameters do not fit the networks.
     #[error(transparent)]
     Parameters(#[from] SnapshotError),
-}
-
-/// A target network (C.1): same layout as `online`'s network, built by `build` on a new
-/// VarStore on the same device, parameters copied, frozen (no gradients).
-fn frozen_copy<N>(
-    online: &nn::VarStore,
-    build: impl FnOnce(&nn::VarStore) -> N,
-) -> Result<(nn::VarStore, N), tch::TchError> {
-    let mut vs = nn::VarStore::new(online.device());
-    let net = build(&vs);
-    vs.copy(online)?;
-    vs.freeze();
-    Ok((vs, net))
-}
-
-/// The critics of either family.
-#[derive(Debug)]
-#[allow(
-    clippy::large_enum_variant,
-    reason = "one per learner; boxing buys nothing"
-)]
-pub(crate) enum Critics {
-    /// MO-MPO: Q_c(s, a) with a frozen target copy (C.1).
-    Q {
-        online: MultiCritic,
-        target: MultiCritic,
-        target_vs: nn::VarStore,
-    },
-    /// MO-V-MPO: V_c(s), bootstrapped from itself (D.1).
-    V { online: ValueNet },
-}
-
-/// What `Learner::build_networks` makes.
-#[derive(Debug)]
-struct Networks {
-    policy_vs: nn::VarStore,
-    policy: Policy,
-    target_policy_vs: nn::VarStore,
-    target_policy: Policy,
-    critic_vs: nn::VarStore,
-    critics: Critics,
-}
-
-impl Networks {
-    /// The online and target stores, in one order for every `Networks`.
-    fn stores(&self) -> Vec<&nn::VarStore> {
-        let mut stores = vec![&self.policy_vs, &self.target_policy_vs, &self.critic_vs];
-        if let Critics::Q { target_vs, .. } = &self.critics {
-            stores.push(target_vs);
-        }
-        stores
-    }
-
-    /// Copies `singles[p]`'s parameters into member p of these stacked networks.
-    fn load_members(&self, singles: &[Networks]) -> Result<(), tch::TchError> {
-        for (p, single) in singles.iter().enumerate() {
-            for (stacked, one) in self.stores().into_iter().zip(single.stores()) {
-                let vars = stacked.variables();
-                for (name, value) in one.variables() {
-                    let slot = vars.get(&name).ok_or_else(|| {
-                        tch::TchError::FileFormat(format!("no stacked variable {name}"))
-                    })?;
-                    tch::no_grad(|| slot.get(p as i64).f_copy_(&value))?;
-                }
-            }
-        }
-        Ok(())
-    }
 }
 
 /// Networks, targets, optimizers, duals and the step counter of one learner.
@@ -206,11 +137,7 @@ impl Learner {
         let built = cfgs
             .iter()
             .zip(&bounds)
-            .map(|(c, b)| {
-                seeded_init(c.seed, || {
-                    Self::build_networks(c, &dims, b, device, Members::ONE)
-                })
-            })
+            .map(|(c, b)| seeded_init(c.seed, || build_networks(c, &dims, b, device, Members::ONE)))
             .collect::<Result<Vec<_>, _>>()?;
         let nets = match members.stacked() {
             false => built.into_iter().next().expect("one member"),
@@ -218,7 +145,7 @@ impl Learner {
                 // Built under the lock so that its (overwritten) draws cannot change
                 // another run's initialisation.
                 let stacked = seeded_init(cfg.seed, || {
-                    Self::build_networks(&cfg, &dims, &bound, device, members)
+                    build_networks(&cfg, &dims, &bound, device, members)
                 })?;
                 stacked.load_members(&built)?;
                 stacked
@@ -311,56 +238,6 @@ impl Learner {
             member_cfgs: cfgs,
             acts: Cell::new(0),
             step: 0,
-        })
-    }
-
-    /// The networks in today's construction order, which fixes what each parameter
-    /// draws from the seeded generator (see `random::seeded_init`).
-    fn build_networks(
-        cfg: &LearnerConfig,
-        dims: &LearnerDims,
-        bound: &BoundObjectives,
-        device: Device,
-        members: Members,
-    ) -> Result<Networks, tch::TchError> {
-        let net = &cfg.network;
-        let heads = bound.critic_names.len() as i64;
-        let policy_vs = nn::VarStore::new(device);
-        let build_policy =
-            |vs: &nn::VarStore| Policy::with_members(&(vs.root() / "policy"), net, dims, members);
-        let policy = build_policy(&policy_vs);
-        let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, build_policy)?;
-        let critic_vs = nn::VarStore::new(device);
-        let critics = if cfg.algorithm.on_policy() {
-            Critics::V {
-                online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads),
-            }
-        } else {
-            let build = |vs: &nn::VarStore| {
-                MultiCritic::with_members(
-                    &(vs.root() / "critic"),
-                    net,
-                    dims.obs_dim,
-                    dims.action,
-                    heads,
-                    members,
-                )
-            };
-            let online = build(&critic_vs);
-            let (target_vs, target) = frozen_copy(&critic_vs, build)?;
-            Critics::Q {
-                online,
-                target,
-                target_vs,
-            }
-        };
-        Ok(Networks {
-            policy_vs,
-            policy,
-            target_policy_vs,
-            target_policy,
-            critic_vs,
-            critics,
         })
     }
 

@@ -62,7 +62,7 @@ impl Torso {
     }
 
     /// As `new`, for `members` networks. Panics for a stacked mocap torso: populations
-    /// have plain torsos (`LearnerConfig::validate_population` says so first).
+    /// have plain torsos (`algo::population::check_population` refuses them first).
     pub fn with_members(
         p: &nn::Path,
         cfg: &NetworkConfig,
