@@ -19,7 +19,7 @@ use std::time::Instant;
 use serde::Serialize;
 use tokio::sync::watch;
 
-use crate::algo::{Learner, LearnerStats};
+use crate::algo::{Learner, LearnerStats, SnippetBatch};
 use crate::checkpoint::CheckpointError;
 use crate::metrics::RunFiles;
 use crate::nets::PolicySnapshot;
@@ -222,14 +222,30 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                 return Ok(());
             }
             let t0 = Instant::now();
-            let batches = members
+            let sampled: Vec<Option<SnippetBatch>> = members
                 .iter()
                 .map(|m| {
-                    let replay = m.run.schedule.replay.lock();
-                    let batch = replay.unwrap_or_else(|e| e.into_inner()).sample(batch_size);
-                    batch.to_device(device)
+                    m.done.is_none().then(|| {
+                        let replay = m.run.schedule.replay.lock();
+                        let batch = replay.unwrap_or_else(|e| e.into_inner()).sample(batch_size);
+                        batch.to_device(device)
+                    })
                 })
-                .collect::<Vec<_>>();
+                .collect();
+            // A stopped member's slot trains on a running member's batch (a shallow
+            // copy): its results are discarded (its last checkpoint and policy were
+            // taken when it stopped), and its on-policy queue, no longer filled, may
+            // hold less than a batch.
+            let stand_in = sampled
+                .iter()
+                .flatten()
+                .next()
+                .expect("checked above: a member is running")
+                .to_device(device);
+            let batches: Vec<SnippetBatch> = sampled
+                .into_iter()
+                .map(|b| b.unwrap_or_else(|| stand_in.to_device(device)))
+                .collect();
             let all_stats = learner.step_members(&batches)?;
             let step_ms = t0.elapsed().as_secs_f64() * 1e3;
             let n = learner.step_count();

@@ -210,6 +210,30 @@ fn continuous_members(change: impl Fn(&mut LearnerConfig)) -> Vec<LearnerConfig>
         .collect()
 }
 
+/// Learned `treasure` (ε given) and `time` (ε 0.02) objectives.
+fn treasure_and_time(eps: f64) -> Vec<ObjectiveConfig> {
+    ["treasure", "time"]
+        .into_iter()
+        .zip([eps, 0.02])
+        .map(|(name, epsilon)| ObjectiveConfig {
+            name: name.into(),
+            epsilon,
+            source: ObjectiveSource::Learned,
+        })
+        .collect()
+}
+
+/// Scalarization weights w (treasure) and 1 - w (time).
+fn treasure_time_weights(w: f64) -> Vec<ObjectiveWeight> {
+    [("treasure", w), ("time", 1.0 - w)]
+        .into_iter()
+        .map(|(name, weight)| ObjectiveWeight {
+            name: name.into(),
+            weight,
+        })
+        .collect()
+}
+
 /// Discrete MO-MPO members on Deep Sea Treasure's settings (T = 1, exact E-step).
 fn discrete_members() -> Vec<LearnerConfig> {
     [(5, 0.1), (6, 0.3), (7, 0.01)]
@@ -220,15 +244,7 @@ fn discrete_members() -> Vec<LearnerConfig> {
             cfg.mpo.retrace_length = 1;
             cfg.mpo.discount = 0.999;
             cfg.mpo.beta_categorical = 0.001;
-            cfg.objectives = ["treasure", "time"]
-                .into_iter()
-                .zip([eps, 0.02])
-                .map(|(name, epsilon)| ObjectiveConfig {
-                    name: name.into(),
-                    epsilon,
-                    source: ObjectiveSource::Learned,
-                })
-                .collect();
+            cfg.objectives = treasure_and_time(eps);
             cfg
         })
         .collect()
@@ -262,20 +278,63 @@ fn scalarized_mpo_members_are_their_single_learners() {
             cfg.seed = seed;
             cfg.algorithm = Algorithm::ScalarizedMpo {
                 epsilon: 0.1,
-                weights: vec![
-                    ObjectiveWeight {
-                        name: "treasure".into(),
-                        weight: w,
-                    },
-                    ObjectiveWeight {
-                        name: "time".into(),
-                        weight: 1.0 - w,
-                    },
-                ],
+                weights: treasure_time_weights(w),
             };
             cfg
         })
         .collect();
+    members_match_singles(cfgs, discrete_dims(), true);
+}
+
+/// MO-V-MPO members (two learned objectives) on unrolls of 4 with two epochs of two
+/// minibatches, so that each member shuffles its own unrolls; seeds 5, 6, 7 and
+/// per-member ε.
+fn vmpo_members(algorithm: impl Fn(f64) -> Algorithm) -> Vec<LearnerConfig> {
+    [(5, 0.1), (6, 0.5), (7, 0.01)]
+        .into_iter()
+        .map(|(seed, eps)| {
+            let mut cfg = small_config();
+            cfg.seed = seed;
+            cfg.algorithm = algorithm(eps);
+            cfg.vmpo.unroll_length = 4;
+            cfg.vmpo.batch_size = 8;
+            cfg.vmpo.learning_rate = 1e-3;
+            cfg.vmpo.target_update_period = 4;
+            cfg.vmpo.epochs = 2;
+            cfg.vmpo.minibatches = 2;
+            cfg.objectives = treasure_and_time(eps);
+            cfg
+        })
+        .collect()
+}
+
+fn gaussian_vmpo_dims() -> LearnerDims {
+    LearnerDims {
+        reward_names: vec!["treasure".into(), "time".into()],
+        ..continuous_dims()
+    }
+}
+
+#[test]
+fn gaussian_mo_vmpo_members_with_padding_are_their_single_learners() {
+    members_match_singles(
+        vmpo_members(|_| Algorithm::MoVmpo),
+        gaussian_vmpo_dims(),
+        true,
+    );
+}
+
+#[test]
+fn categorical_mo_vmpo_members_with_padding_are_their_single_learners() {
+    members_match_singles(vmpo_members(|_| Algorithm::MoVmpo), discrete_dims(), true);
+}
+
+#[test]
+fn scalarized_vmpo_members_are_their_single_learners() {
+    let cfgs = vmpo_members(|w| Algorithm::ScalarizedVmpo {
+        epsilon: 0.1,
+        weights: treasure_time_weights(w),
+    });
     members_match_singles(cfgs, discrete_dims(), true);
 }
 
@@ -307,17 +366,23 @@ fn train(cfgs: &[LearnerConfig], dims: &LearnerDims, nan: Option<usize>) -> Vec<
 #[test]
 fn a_member_does_not_see_the_order_or_the_nans_of_the_others() {
     let _rng = common::exclusive_rng();
-    let dims = continuous_dims();
-    let cfgs = continuous_members(|_| {});
-    let base = train(&cfgs, &dims, None);
+    independent_members(continuous_members(|_| {}), continuous_dims());
+    independent_members(vmpo_members(|_| Algorithm::MoVmpo), discrete_dims());
+}
+
+/// Reordering `cfgs`, or giving member 1 NaN rewards, leaves the others' parameters
+/// as they were.
+fn independent_members(cfgs: Vec<LearnerConfig>, dims: LearnerDims) {
+    let dims = &dims;
+    let base = train(&cfgs, dims, None);
     // Reversed order: member p of the base is member 2 - p here.
     let reversed: Vec<LearnerConfig> = cfgs.iter().rev().cloned().collect();
-    let flipped = train(&reversed, &dims, None);
+    let flipped = train(&reversed, dims, None);
     for p in 0..3 {
         close_params(&flipped[2 - p], &base[p], &format!("member {p} reordered"));
     }
     // Member 1's rewards are NaN: its parameters go NaN, the others' stay as they were.
-    let poisoned = train(&cfgs, &dims, Some(1));
+    let poisoned = train(&cfgs, dims, Some(1));
     assert!(
         poisoned[1]
             .iter()

@@ -6,7 +6,7 @@
 //! initialisation and actor sampling, the Gaussian pendulum run the learner's noise.
 //!
 //! A run trained as a member of a population (issue 22: one batched learner, one env
-//! session for all members) matches the same run alone: its episodes until the
+//! session for all members; MO-MPO and MO-V-MPO) matches the same run alone: its episodes until the
 //! learner's first step (the same env seeds and sampling streams), and its learner
 //! statistics within 1e-5 relative over the first 50 learner steps (batched and single
 //! GEMMs round differently, so not bit for bit; the drift is measured, not assumed).
@@ -160,15 +160,36 @@ fn statistics(curve: &Curve) -> Vec<Vec<f64>> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_population_member_matches_the_same_run_alone() {
-    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
     let mut base = smoke_config(runs.path());
     base.run.total_env_steps = 1200;
+    // Three members: other seeds and another ε_treasure each; 500 transitions (63
+    // steps of 8 instances) before the first learner step.
+    member_matches_alone(base, &[(0, 1.0), (7, 0.1), (3, 0.5)], 504).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_on_policy_population_member_matches_the_same_run_alone() {
+    let runs = tempfile::tempdir().unwrap();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst-movmpo.toml");
+    let mut base = TrainConfig::load(&path).unwrap();
+    base.run.runs_dir = runs.path().to_path_buf();
+    // 54 learner steps of 16 unrolls of 8 steps; 128 transitions before the first.
+    base.run.total_env_steps = 7000;
+    member_matches_alone(base, &[(0, 0.01), (7, 0.05)], 128).await;
+}
+
+/// Trains members of `base` (seed and ε of objective 1 each) as one population, twice,
+/// and each alone: the population repeats bit for bit, and every member matches its
+/// run alone (episodes until `first_step` transitions, learner statistics within
+/// 1e-5 relative over the first 50 learner steps).
+async fn member_matches_alone(base: TrainConfig, settings: &[(u64, f64)], first_step: u64) {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let mut base = base;
     base.run.log_period = 1;
-    // Three members: other seeds and another ε_treasure each.
-    let members: Vec<TrainConfig> = [(0, 1.0), (7, 0.1), (3, 0.5)]
-        .into_iter()
-        .map(|(seed, eps)| {
+    let members: Vec<TrainConfig> = settings
+        .iter()
+        .map(|&(seed, eps)| {
             let mut cfg = with_seed(base.clone(), seed);
             cfg.learner.objectives[1].epsilon = eps;
             cfg
@@ -190,7 +211,6 @@ async fn a_population_member_matches_the_same_run_alone() {
     for (p, (cfg, summary)) in members.into_iter().zip(&population).enumerate() {
         let member = curve(&summary.run_dir);
         let alone = run(cfg, &server).await;
-        // 500 transitions before the first learner step: 63 steps of 8 instances.
         let first_learned = alone
             .episodes
             .iter()
@@ -198,7 +218,7 @@ async fn a_population_member_matches_the_same_run_alone() {
                 l.split(',')
                     .next()
                     .and_then(|s| s.parse::<u64>().ok())
-                    .is_some_and(|s| s > 504)
+                    .is_some_and(|s| s > first_step)
             })
             .unwrap_or(alone.episodes.len());
         assert!(

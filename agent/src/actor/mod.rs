@@ -15,6 +15,9 @@
 //! go to its own run (schedule, replay, episodes.csv). Every member gets the same env
 //! steps. A member whose run has stopped (solved with `stop_on_solve`) is still
 //! stepped, as its instances are part of the session, but records nothing more.
+//! On-policy members each get actors of their own (`train::train_population`): their
+//! learner allowances follow their own episode ends, and an actor stepping several of
+//! them would act for one with a policy its learner step has not yet replaced.
 
 use std::sync::Arc;
 

@@ -212,40 +212,53 @@ pub fn exact_estep_with(
 /// Result of MO-V-MPO's step 1 for all objectives.
 #[derive(Debug)]
 pub struct AdvantageEStepOutput {
-    /// `[N, K]`, no gradient: w_ki, summing to 1 over N per objective.
+    /// `[.., N, K]`, no gradient: w_ki, summing to 1 over N per member and objective.
     pub weights: Tensor,
-    /// `[N, K]` f32 in {0, 1}: the top-k selection.
+    /// `[.., N, K]` f32 in {0, 1}: the top-k selection.
     pub selected: Tensor,
-    /// Scalar: sum over objectives with eps_k > 0 of g(eta_k); gradient only with
-    /// respect to `temperature`.
+    /// Scalar: sum over members and objectives with eps_k > 0 of g(eta_k); gradient
+    /// only with respect to `temperature`.
     pub temperature_loss: Tensor,
-    /// `[K]`, no gradient: realised KL(q_k || p_old) with p_old uniform over the
+    /// `[.., K]`, no gradient: realised KL(q_k || p_old) with p_old uniform over the
     /// eligible pairs.
     pub kl: Tensor,
 }
 
-/// The top-`fraction` selection per objective among eligible pairs.
+/// The top-`fraction` selection per member and objective among its eligible pairs.
+/// k is computed on the device (in f64, as `floor(fraction * n)` on the host would
+/// be), and the threshold is the k-th value of a descending sort: the k-th largest,
+/// with no host read and one k per member.
 /// # Shapes
-/// `advantages [N, K]`, `eligible [N]` f32 in {0, 1} (at least one 1) `-> [N, K]` f32.
+/// `advantages [.., N, K]`, `eligible [.., N]` f32 in {0, 1} (at least one 1 per
+/// member) `-> [.., N, K]` f32.
 pub fn top_k_mask(advantages: &Tensor, eligible: &Tensor, fraction: f64) -> Tensor {
-    let n_eligible = eligible.sum(Kind::Float).double_value(&[]);
-    let k = ((fraction * n_eligible).floor() as i64).max(1);
+    let n_eligible = eligible.sum_dim_intlist(-1, true, Kind::Double);
+    let k = (n_eligible * fraction)
+        .floor()
+        .clamp_min(1.0)
+        .to_kind(Kind::Int64);
     let is_eligible = eligible.gt(0.5).unsqueeze(-1);
     let masked = advantages
         .detach()
         .masked_fill(&is_eligible.logical_not(), f64::NEG_INFINITY);
-    let (top, _) = masked.topk(k, 0, true, true);
-    let threshold = top.narrow(0, k - 1, 1);
+    let (sorted, _) = masked.sort(-2, true);
+    let columns = *advantages.size().last().expect("[.., N, K]");
+    let mut at = (k - 1).unsqueeze(-1);
+    let mut shape = at.size();
+    *shape.last_mut().expect("[.., 1, 1]") = columns;
+    at = at.expand(shape.as_slice(), false);
+    let threshold = sorted.gather(-2, &at, false);
     masked
         .ge_tensor(&threshold)
         .logical_and(&is_eligible)
         .to_kind(Kind::Float)
 }
 
-/// MO-V-MPO step 1 (see module docs).
+/// MO-V-MPO step 1 (see module docs), for one learner or a population's members at
+/// once (each member's selection, weights and dual over its own pairs).
 /// # Shapes
-/// `advantages [N, K]` (no gradient needed), `eligible [N]`, `temperature [K]`
-/// (positive, may require grad), `epsilon [K]`.
+/// `advantages [.., N, K]` (no gradient needed), `eligible [.., N]`, `temperature`
+/// and `epsilon [K]` or `[P, 1, K]` (positive, may require grad).
 pub fn advantage_estep(
     advantages: &Tensor,
     eligible: &Tensor,
@@ -259,21 +272,19 @@ pub fn advantage_estep(
     let scaled = advantages.detach() / temperature;
     let floor = Tensor::full_like(&scaled, f64::NEG_INFINITY);
     let kept = scaled.where_self(&selected.gt(0.5), &floor);
-    let max = kept.detach().amax([0i64].as_slice(), true);
-    let log_sum = (&kept - &max).logsumexp([0i64].as_slice(), false);
-    let count = selected.sum_dim_intlist(0, false, Kind::Float);
-    let log_mean_exp = log_sum + max.squeeze_dim(0) - count.log();
+    let over_pairs = [-2i64];
+    let max = kept.detach().amax(over_pairs.as_slice(), true);
+    let log_sum = (&kept - &max).logsumexp(over_pairs.as_slice(), true);
+    let count = selected.sum_dim_intlist(-2, true, Kind::Float);
+    let log_mean_exp = log_sum + max - count.log();
     let dual = temperature * (epsilon + log_mean_exp);
     let temperature_loss = (dual * &active).sum(Kind::Float);
-    let softmax = kept.detach().softmax(0, Kind::Float);
-    let n_eligible = eligible.sum(Kind::Float);
+    let softmax = kept.detach().softmax(-2, Kind::Float);
+    let n_eligible = eligible.sum_dim_intlist(-1, true, Kind::Float);
     let uniform = (&eligible / &n_eligible).unsqueeze(-1);
     let weights: Tensor = &softmax * &active + uniform * (1.0 - &active);
-    let kl = (&weights * (&weights * &n_eligible).clamp_min(1e-30).log()).sum_dim_intlist(
-        0,
-        false,
-        Kind::Float,
-    );
+    let kl = (&weights * (&weights * n_eligible.unsqueeze(-1)).clamp_min(1e-30).log())
+        .sum_dim_intlist(-2, false, Kind::Float);
     AdvantageEStepOutput {
         weights,
         selected,

@@ -91,7 +91,7 @@ impl Learner {
 
         // 1. Policy evaluation with Retrace (C.2).
         let eval = tch::no_grad(|| {
-            let target_out = self.target_policy.forward_members(&obs_all);
+            let target_out = self.target_policy.forward_members(&obs_all, None);
             let (samples, critic_q, v_all, log_prior) = match &target_out {
                 PolicyOutput::Gaussian(g) => {
                     let noise = noise
@@ -181,7 +181,7 @@ impl Learner {
         // 3. M-step (eqs. 16-20) and dual updates. A conditioned learner's M-step
         // averages over all its states.
         let start = Instant::now();
-        let online_out = self.policy.forward_members(&obs_real);
+        let online_out = self.policy.forward_members(&obs_real, None);
         let fit_states = match preferences {
             Some(_) => StateMean::Uniform,
             None => states,
@@ -215,7 +215,7 @@ impl Learner {
     /// The members' batches stacked member-first (on the learner's device), with the
     /// observations as the step trains on them and, for an ε-conditioned learner (one
     /// member), each state's grid point.
-    fn stack_batches(
+    pub(super) fn stack_batches(
         &self,
         batches: &[SnippetBatch],
         t_len: i64,
@@ -335,7 +335,7 @@ impl Learner {
         // Each state is a snippet of length 0: its own grid point.
         let (obs, preferences) = self.preferences_of(&obs.to_device(self.device).unsqueeze(0), 0);
         let n = obs.size()[1];
-        let target_out = tch::no_grad(|| self.target_policy.forward_members(&obs));
+        let target_out = tch::no_grad(|| self.target_policy.forward_members(&obs, None));
         let PolicyOutput::Gaussian(target) = &target_out else {
             panic!("improve_policy_with needs a Gaussian policy");
         };
@@ -352,7 +352,7 @@ impl Learner {
             None => StateMean::Members(&uniform),
         };
         let estep = self.estep(&q, None, preferences.as_ref(), states);
-        let online_out = self.policy.forward_members(&obs);
+        let online_out = self.policy.forward_members(&obs, None);
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
         let fit_states = match preferences {
             Some(_) => StateMean::Uniform,

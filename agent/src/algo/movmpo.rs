@@ -27,13 +27,19 @@
 //! policy together, and the targets and advantages are recomputed with the current
 //! critic in every update.
 //!
-//! Shape legend: T unroll length, B unrolls, N = TB pairs, D action dims, A discrete
-//! actions, K objectives, C critics.
+//! **Populations**: every tensor is member-first (`[P, ..]`); each member's targets,
+//! top-k, duals and policy fit use its own unrolls and real steps (gathered to the
+//! widest member's count, `real_states::real_rows`), and each member shuffles its own
+//! minibatches from its own stream, so member p computes what a learner of its config
+//! alone computes on the same batches.
+//!
+//! Shape legend: P members, T unroll length, B unrolls, N = TB pairs, D action dims, A
+//! discrete actions, K objectives, C critics.
 
 use super::batch::SnippetBatch;
 use super::estep::{StateMean, advantage_estep};
 use super::objectives::QSource;
-use super::real_states::masked_half_mse;
+use super::real_states::{gather_states, masked_half_mse, real_rows};
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since};
 use super::update::StepMeasures;
 use crate::nets::PolicyOutput;
@@ -85,32 +91,52 @@ fn summed(a: &PhaseTimings, b: &PhaseTimings) -> PhaseTimings {
 }
 
 impl Learner {
-    /// One MO-V-MPO learner step on a checked batch of on-policy unrolls: `vmpo.epochs`
-    /// passes, each over `vmpo.minibatches` disjoint subsets of the unrolls (one
-    /// subset, the whole batch, by default), then the target update. The statistics
-    /// are the last update's; the timings are summed over the updates.
-    pub(super) fn vmpo_step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
-        let batch = batch.to_device(self.device);
+    /// One MO-V-MPO learner step of every member on its checked batch of on-policy
+    /// unrolls: `vmpo.epochs` passes, each over `vmpo.minibatches` disjoint subsets of
+    /// each member's unrolls (one subset, the whole batch, by default), then the
+    /// target update. The statistics are the last update's; the timings are summed
+    /// over the updates.
+    pub(super) fn vmpo_step(
+        &mut self,
+        batches: &[SnippetBatch],
+    ) -> Result<Vec<LearnerStats>, LearnerError> {
         let (epochs, parts) = (self.cfg.vmpo.epochs, self.cfg.vmpo.minibatches as i64);
-        let b = batch.batch_size();
+        let (t_len, b) = (batches[0].len(), batches[0].batch_size());
         let mut measured: Option<StepMeasures> = None;
         for epoch in 0..epochs {
-            let subsets = if parts == 1 {
-                vec![None]
+            let subsets: Vec<SnippetBatch> = if parts == 1 {
+                vec![self.stack_batches(batches, t_len).0]
             } else {
-                // A fresh shuffle per epoch (as PPO), keyed by (seed, step, epoch).
-                let mut stream =
-                    StreamKey::new(self.cfg.seed, Purpose::Minibatches, epoch as u64).at(self.step);
-                let order = stream.uniform(&[b], Device::Cpu).argsort(0, false);
-                order.chunk(parts, 0).into_iter().map(Some).collect()
+                // A fresh shuffle per member and epoch (as PPO), keyed by the member's
+                // (seed, step, epoch).
+                let orders: Vec<Vec<Tensor>> = self
+                    .member_cfgs
+                    .iter()
+                    .map(|c| {
+                        StreamKey::new(c.seed, Purpose::Minibatches, epoch as u64)
+                            .at(self.step)
+                            .uniform(&[b], Device::Cpu)
+                            .argsort(0, false)
+                            .chunk(parts, 0)
+                    })
+                    .collect();
+                (0..parts as usize)
+                    .map(|i| {
+                        let subset: Vec<SnippetBatch> = batches
+                            .iter()
+                            .zip(&orders)
+                            .map(|(batch, order)| {
+                                batch.select_unrolls(
+                                    &order[i].to_device(batch.observations.device()),
+                                )
+                            })
+                            .collect();
+                        self.stack_batches(&subset, t_len).0
+                    })
+                    .collect()
             };
-            for subset in subsets {
-                let m = match subset {
-                    None => self.vmpo_update(&batch),
-                    Some(index) => {
-                        self.vmpo_update(&batch.select_unrolls(&index.to_device(self.device)))
-                    }
-                };
+            for subset in &subsets {
+                let m = self.vmpo_update(subset);
                 measured = Some(match measured {
                     None => m,
                     Some(previous) => StepMeasures {
@@ -120,43 +146,57 @@ impl Learner {
                 });
             }
         }
-        self.finish_step(measured.expect("vmpo.epochs >= 1 is validated"))
+        self.finish_members(measured.expect("vmpo.epochs >= 1 is validated"))
     }
 
-    /// One update (critic, step 1, step 2, duals) on the unrolls of `batch`.
+    /// One update (critic, step 1, step 2, duals) on the members' unrolls of `batch`
+    /// (member-first: `[P, T, B, ..]`).
     fn vmpo_update(&mut self, batch: &SnippetBatch) -> StepMeasures {
         let start = Instant::now();
-        let (t_len, b) = (batch.len(), batch.batch_size());
+        let p = self.members.count();
+        let (t_len, b) = (
+            batch.observations.size()[1] - 1,
+            batch.observations.size()[2],
+        );
         let n = t_len * b;
         let heads = self.bound.critic_names.len() as i64;
-        let obs_all = batch
-            .observations
-            .reshape([(t_len + 1) * b, self.dims.obs_dim]);
-        let obs_taken = obs_all.narrow(0, 0, n);
+        let obs_all = batch.observations.reshape([p, (t_len + 1) * b, -1]);
+        let obs_taken = obs_all.narrow(1, 0, n);
         let Critics::V { online: critic } = &self.critics else {
             unreachable!("V-MPO learners are built with state-value critics")
         };
 
         // 1. Policy evaluation (D.1, eq. 21).
-        let values = critic.forward(&obs_all).reshape([t_len + 1, b, heads]);
+        let values = critic
+            .forward_members(&obs_all)
+            .reshape([p, t_len + 1, b, heads]);
         let rewards = self.critic_rewards(&batch.rewards);
+        // The targets run along time: members join the unroll axis.
+        let time_first = |t: &Tensor| {
+            let size = t.size();
+            let mut shape = vec![size[1], p * b];
+            shape.extend_from_slice(&size[3..]);
+            t.transpose(0, 1).reshape(shape.as_slice())
+        };
         let targets = tch::no_grad(|| {
             unroll_targets(&UnrollTargetInputs {
-                rewards: &rewards,
-                discounts: &batch.discounts,
-                valid: &batch.valid,
-                values: &values.detach(),
+                rewards: &time_first(&rewards),
+                discounts: &time_first(&batch.discounts),
+                valid: &time_first(&batch.valid),
+                values: &time_first(&values.detach()),
                 gamma: self.settings.discount,
             })
-        });
-        let v_taken = values.narrow(0, 0, t_len);
-        let advantages = (&targets - v_taken.detach()).reshape([n, heads]);
-        let valid = batch.valid.reshape([n]);
-        let real_steps = valid.sum(Kind::Float).clamp_min(1.0);
-        let per_head = masked_half_mse(&(v_taken - &targets).reshape([n, heads]), &valid);
-        let value_mean = (values.detach().narrow(0, 0, t_len).reshape([n, heads])
+        })
+        .reshape([t_len, p, b, heads])
+        .transpose(0, 1);
+        let v_taken = values.narrow(1, 0, t_len);
+        let advantages = (&targets - v_taken.detach()).reshape([p, n, heads]);
+        let valid = batch.valid.reshape([p, n]);
+        let per_head = masked_half_mse(&(v_taken - &targets).reshape([p, n, heads]), &valid);
+        let real_steps = valid.sum_dim_intlist(-1, true, Kind::Float).clamp_min(1.0);
+        let value_mean = (values.detach().narrow(1, 0, t_len).reshape([p, n, heads])
             * valid.unsqueeze(-1))
-        .sum_dim_intlist(0, false, Kind::Float)
+        .sum_dim_intlist(1, false, Kind::Float)
             / &real_steps;
         self.update_critics(&per_head.sum(Kind::Float));
         let policy_evaluation_ms = ms_since(start, self.device);
@@ -175,50 +215,50 @@ impl Learner {
             })
             .collect();
         let objective_advantages = Tensor::stack(&columns, -1);
+        let k = self.bound.objectives.len() as i64;
         let estep = advantage_estep(
             &objective_advantages,
             &valid,
-            &self.duals.temperature(),
-            &self.epsilon,
+            &self.duals.temperature().reshape([-1, 1, k]),
+            &self.epsilon.reshape([-1, 1, k]),
             self.cfg.vmpo.top_k_fraction,
         );
-        // Step 2 fits the policy, and bounds its KL, at real steps only: padding carries
-        // no weight and is never acted from.
+        // Step 2 fits the policy, and bounds its KL, at each member's real steps only:
+        // padding carries no weight and is never acted from.
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
-        let taken = batch.actions.flatten(0, 1);
-        let (obs_real, taken, weights) = if real_steps.int64_value(&[]) < n {
-            let index = valid.gt(0.5).nonzero().squeeze_dim(-1);
-            (
-                obs_taken.index_select(0, &index),
-                taken.index_select(0, &index),
-                weights.index_select(0, &index),
-            )
-        } else {
-            (obs_taken, taken, weights)
+        let taken = batch.actions.flatten(1, 2);
+        let real = real_rows(&valid.gt(0.5));
+        let (obs_real, taken, weights) = match &real.index {
+            None => (obs_taken, taken, weights),
+            Some(index) => (
+                gather_states(&obs_taken, index, 1),
+                gather_states(&taken, index, 1),
+                gather_states(&weights, index, 1),
+            ),
         };
-        // fit_policy averages over the pairs; the weights sum to 1 over the batch.
-        let n_real = obs_real.size()[0];
-        let weights = weights * n_real as f64;
+        // fit_policy averages over each member's real steps; the weights sum to 1 over
+        // them.
+        let weights = weights * &real_steps;
         let e_step_ms = ms_since(start, self.device);
 
         // 3. Step 2 (D.2.2, eq. 25) and dual updates.
         let start = Instant::now();
         let noise = self
             .policy
-            .latent_noise(n_real, &mut self.stream(Purpose::LatentNoise));
+            .latent_noise(obs_real.size()[1], &mut self.stream(Purpose::LatentNoise));
         let target_out = tch::no_grad(|| {
             self.target_policy
-                .forward_with_noise(&obs_real, noise.as_ref())
+                .forward_members(&obs_real, noise.as_ref())
         });
-        let online_out = self.policy.forward_with_noise(&obs_real, noise.as_ref());
+        let online_out = self.policy.forward_members(&obs_real, noise.as_ref());
         let (actions, weights) = match &online_out {
-            PolicyOutput::Gaussian(_) => (taken.unsqueeze(0), weights.unsqueeze(0)),
+            PolicyOutput::Gaussian(_) => (taken.unsqueeze(1), weights.unsqueeze(1)),
             PolicyOutput::Categorical(logits) => {
                 let one_hot = taken
-                    .one_hot(logits.size()[1])
+                    .one_hot(logits.size()[2])
                     .to_kind(Kind::Float)
-                    .transpose(0, 1);
-                (taken, one_hot * weights.unsqueeze(0))
+                    .transpose(1, 2);
+                (taken, one_hot * weights.unsqueeze(1))
             }
         };
         let policy_kl = self.fit_policy(
@@ -227,7 +267,7 @@ impl Learner {
             &actions,
             &weights,
             &estep.temperature_loss,
-            StateMean::Uniform,
+            StateMean::Members(&real.weight),
         );
         let m_step_ms = ms_since(start, self.device);
 

@@ -96,7 +96,13 @@ pub(super) fn build_networks(
     let critic_vs = nn::VarStore::new(device);
     let critics = if cfg.algorithm.on_policy() {
         Critics::V {
-            online: ValueNet::new(&(critic_vs.root() / "critic"), net, dims.obs_dim, heads),
+            online: ValueNet::with_members(
+                &(critic_vs.root() / "critic"),
+                net,
+                dims.obs_dim,
+                heads,
+                members,
+            ),
         }
     } else {
         let build = |vs: &nn::VarStore| {

@@ -33,9 +33,7 @@ pub fn population_key(cfg: &LearnerConfig) -> LearnerConfig {
 
 /// Why `cfg` cannot be a member of a population of more than one, if it cannot.
 pub fn unbatchable(cfg: &LearnerConfig) -> Option<&'static str> {
-    if cfg.algorithm.on_policy() {
-        Some("an on-policy (V-MPO) learner")
-    } else if cfg.conditioning.is_some() {
+    if cfg.conditioning.is_some() {
         Some("an ε-conditioned learner (learner.conditioning)")
     } else if !matches!(cfg.network.architecture, Architecture::Mlp) {
         Some("a mocap torso (network.architecture)")
@@ -60,7 +58,7 @@ pub fn check_population(cfgs: &[LearnerConfig]) -> Result<(), ConfigError> {
     if let Some(what) = unbatchable(first) {
         return Err(ConfigError::Invalid {
             field: "population".into(),
-            requirement: "members that batch (MO-MPO or scalarized MPO, plain networks)".into(),
+            requirement: "members that batch (unconditioned learners with plain networks)".into(),
             got: format!("{} members of {what}", cfgs.len()),
         });
     }
@@ -128,7 +126,7 @@ mod tests {
     }
 
     #[test]
-    fn scalarization_weights_vary_and_v_mpo_does_not_batch() {
+    fn scalarization_weights_vary_v_mpo_batches_and_mocap_does_not() {
         let scalarized = |w: f64| LearnerConfig {
             algorithm: Algorithm::ScalarizedMpo {
                 epsilon: 0.1,
@@ -140,14 +138,21 @@ mod tests {
             ..LearnerConfig::default()
         };
         assert!(check_population(&[scalarized(1.0), scalarized(0.2)]).is_ok());
-        let vmpo = LearnerConfig {
+        let vmpo = |seed, eps| LearnerConfig {
             algorithm: Algorithm::MoVmpo,
-            ..member(0, 0.1)
+            ..member(seed, eps)
         };
-        let err = check_population(&[vmpo.clone(), vmpo.clone()]).unwrap_err();
-        assert!(err.to_string().contains("on-policy"), "{err}");
+        assert!(check_population(&[vmpo(0, 0.1), vmpo(1, 0.3)]).is_ok());
+        let mut mocap = vmpo(0, 0.1);
+        mocap.network.architecture = Architecture::Mocap {
+            latent_dim: 60,
+            encoder_layers: vec![32],
+            reference_match: "reference".into(),
+        };
+        let err = check_population(&[mocap.clone(), mocap.clone()]).unwrap_err();
+        assert!(err.to_string().contains("mocap torso"), "{err}");
         assert!(
-            check_population(&[vmpo]).is_ok(),
+            check_population(&[mocap]).is_ok(),
             "one member always batches"
         );
     }

@@ -34,15 +34,21 @@ pub fn real_states(valid: &Tensor, discounts: &Tensor) -> RealStates {
     let acted = Tensor::cat(&[valid.shallow_clone(), none.shallow_clone()], 1);
     let bootstrapped = Tensor::cat(&[none, valid * discounts], 1);
     let real = acted.maximum(&bootstrapped).gt(0.5).reshape([p, -1]);
-    let n = real.size()[1];
-    debug_assert_eq!(n % b, 0);
+    debug_assert_eq!(real.size()[1] % b, 0);
+    real_rows(&real)
+}
+
+/// Each member's real rows of `real [P, N]` (bool), gathered to the widest member's
+/// count as `real_states` does. One member alone gets exactly its real rows.
+pub fn real_rows(real: &Tensor) -> RealStates {
+    let (p, n) = (real.size()[0], real.size()[1]);
     let counts = real.sum_dim_intlist(1, true, Kind::Int64);
     // One host read per step: the widest and narrowest members' counts.
     let extremes =
         Vec::<i64>::try_from(&Tensor::stack(&[counts.max(), counts.min()], 0)).expect("i64 counts");
     let widest = extremes[0];
     if extremes[1] == n {
-        let weight = Tensor::full([p, n], 1.0 / n as f64, (Kind::Float, valid.device()));
+        let weight = Tensor::full([p, n], 1.0 / n as f64, (Kind::Float, real.device()));
         return RealStates {
             index: None,
             weight,
@@ -50,8 +56,8 @@ pub fn real_states(valid: &Tensor, discounts: &Tensor) -> RealStates {
     }
     // Real row r of member p goes to slot (number of real rows before it); the rest to
     // a spare slot that is cut off.
-    let slots = (real.cumsum(1, Kind::Int64) - 1).where_self(&real, &Tensor::from(widest));
-    let rows = Tensor::arange(n, (Kind::Int64, valid.device()))
+    let slots = (real.cumsum(1, Kind::Int64) - 1).where_self(real, &Tensor::from(widest));
+    let rows = Tensor::arange(n, (Kind::Int64, real.device()))
         .unsqueeze(0)
         .expand([p, n], false)
         .contiguous();
@@ -61,7 +67,7 @@ pub fn real_states(valid: &Tensor, discounts: &Tensor) -> RealStates {
         .contiguous()
         .scatter(1, &slots, &rows)
         .narrow(1, 0, widest);
-    let position = Tensor::arange(widest, (Kind::Int64, valid.device())).unsqueeze(0);
+    let position = Tensor::arange(widest, (Kind::Int64, real.device())).unsqueeze(0);
     let counted = position.lt_tensor(&counts).to_kind(Kind::Float);
     // Every snippet has a real first step, so no member counts 0; the floor keeps a
     // malformed batch from dividing by it.

@@ -11,8 +11,8 @@
 //! scalarization weights as one program: parameters, Adam moments, duals and targets
 //! carry a leading member axis (`nets::Members`), the members' losses are summed
 //! before one backward (each member gets exactly its own gradient), and each member
-//! draws from its own random streams. `Learner::new` is a population of one. The
-//! MO-MPO family only; ε-conditioned learners and V-MPO have one member.
+//! draws from its own random streams. `Learner::new` is a population of one. Every
+//! algorithm; ε-conditioned learners and mocap torsos have one member.
 //!
 //! Shape legend: P members, N states, M samples (or A actions), D action dims, K
 //! objectives, C learned critics.
@@ -332,10 +332,6 @@ impl Learner {
     /// One learner step of the configured algorithm on B sequences of T steps (a
     /// learner of one member).
     pub fn step(&mut self, batch: &SnippetBatch) -> Result<LearnerStats, LearnerError> {
-        if self.cfg.algorithm.on_policy() {
-            self.check_batch(batch)?;
-            return self.vmpo_step(batch);
-        }
         let mut stats = self.step_members(std::slice::from_ref(batch))?;
         Ok(stats.swap_remove(0))
     }
@@ -371,7 +367,7 @@ impl Learner {
             }
         }
         if self.cfg.algorithm.on_policy() {
-            return Ok(vec![self.vmpo_step(&batches[0])?]);
+            return self.vmpo_step(batches);
         }
         self.mpo_step(batches)
     }

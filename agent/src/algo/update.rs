@@ -25,7 +25,7 @@ pub(crate) struct StepMeasures {
     pub value_mean: Tensor,
     /// KL parts between target and online policy.
     pub policy_kl: Tensor,
-    /// Phase timings; `target_update_ms` is filled in by `finish_step`.
+    /// Phase timings; `target_update_ms` is filled in by `finish_members`.
     pub timings: PhaseTimings,
 }
 
@@ -124,17 +124,9 @@ impl Learner {
         policy_kl
     }
 
-    /// Counts the step, copies the targets when due, and reports the step.
-    pub(crate) fn finish_step(
-        &mut self,
-        measured: StepMeasures,
-    ) -> Result<LearnerStats, LearnerError> {
-        let mut stats = self.finish_members(measured)?;
-        Ok(stats.swap_remove(0))
-    }
-
-    /// `finish_step` for every member: the measures are member-first (`[P, ..]`), and
-    /// all members' statistics come to the host in one copy.
+    /// Counts the step, copies the targets when due, and reports every member's step:
+    /// the measures are member-first (`[P, ..]`), and all members' statistics come to
+    /// the host in one copy.
     pub(crate) fn finish_members(
         &mut self,
         measured: StepMeasures,

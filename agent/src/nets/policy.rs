@@ -97,9 +97,13 @@ impl GaussianPolicy {
     }
 
     /// # Shapes
-    /// `obs [P, B, obs_dim] -> mean, std [P, B, D]`.
-    pub fn forward_members(&self, obs: &Tensor) -> GaussianParams {
-        self.params(self.head.forward_members(&self.torso.forward_members(obs)))
+    /// `obs [P, B, obs_dim]`, latent `noise [B, L]` (one member's mocap torso; `None`
+    /// takes the latent's mean) `-> mean, std [P, B, D]`.
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> GaussianParams {
+        self.params(
+            self.head
+                .forward_members(&self.torso.forward_members(obs, noise)),
+        )
     }
 
     /// Mean and std from the head's output `[.., 2 D]`.
@@ -142,9 +146,10 @@ impl CategoricalPolicy {
         Self { torso, head }
     }
 
-    /// # Shapes `obs [P, B, obs_dim] -> [P, B, A]`.
-    pub fn forward_members(&self, obs: &Tensor) -> Tensor {
-        self.head.forward_members(&self.torso.forward_members(obs))
+    /// # Shapes `obs [P, B, obs_dim]`, latent `noise` as `GaussianPolicy`'s `-> [P, B, A]`.
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> Tensor {
+        self.head
+            .forward_members(&self.torso.forward_members(obs, noise))
     }
 
     /// Unnormalised log-probabilities. # Shapes `obs [B, obs_dim] -> [B, A]`.
@@ -277,13 +282,14 @@ impl Policy {
         }
     }
 
-    /// Every member's distribution on its own states.
+    /// Every member's distribution on its own states; a latent torso (one member
+    /// only) reads the latent `noise [B, L]`, or its mean when `None`.
     /// # Shapes
     /// `obs [P, B, obs_dim] -> [P, B, D]` (mean, std) or `[P, B, A]` (logits).
-    pub fn forward_members(&self, obs: &Tensor) -> PolicyOutput {
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> PolicyOutput {
         match self {
-            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward_members(obs)),
-            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward_members(obs)),
+            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward_members(obs, noise)),
+            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward_members(obs, noise)),
         }
     }
 

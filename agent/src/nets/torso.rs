@@ -141,12 +141,12 @@ impl Torso {
 
 impl Torso {
     /// # Shapes
-    /// `obs [P, B, O] -> [P, B, F]` (plain torsos; one member's mocap torso with its
-    /// latent mean).
-    pub fn forward_members(&self, obs: &Tensor) -> Tensor {
+    /// `obs [P, B, O] -> [P, B, F]` (plain torsos; one member's mocap torso, with the
+    /// latent `noise [B, L]` as `forward`).
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> Tensor {
         match self {
             Torso::Mlp(m) => m.forward_members(obs),
-            Torso::Mocap(_) => self.forward(&obs.squeeze_dim(0), None).unsqueeze(0),
+            Torso::Mocap(_) => self.forward(&obs.squeeze_dim(0), noise).unsqueeze(0),
         }
     }
 }

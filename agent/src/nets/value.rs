@@ -6,10 +6,13 @@
 //! Linear to one value. A.3: MO-V-MPO shares (1024, 1024) and has one 1024 layer per
 //! objective; V-MPO's three-layer 1024 MLP is the same layout with C = 1.
 //!
-//! Shape legend: N states, O observation size, C heads.
+//! A population's value nets (`with_members`) are stacked along a member axis, as
+//! its policies and Q critics are (DESIGN.md "Populations").
+//!
+//! Shape legend: P members, N states, O observation size, C heads.
 
 use super::heads::HeadStack;
-use super::mlp::LayerNormMlp;
+use super::mlp::{LayerNormMlp, Members};
 use crate::config::NetworkConfig;
 use tch::{Tensor, nn};
 
@@ -23,9 +26,23 @@ pub struct ValueNet {
 impl ValueNet {
     /// Parameters under `p` (`shared/..`, `heads/linear_i`).
     pub fn new(p: &nn::Path, cfg: &NetworkConfig, obs_dim: i64, num_heads: i64) -> Self {
+        Self::with_members(p, cfg, obs_dim, num_heads, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        obs_dim: i64,
+        num_heads: i64,
+        members: Members,
+    ) -> Self {
         let shared = cfg.critic_shared_layers;
-        let torso = LayerNormMlp::new(&(p / "shared"), obs_dim, &cfg.critic_layers[..shared]);
-        let heads = HeadStack::new(&(p / "heads"), num_heads, &cfg.critic_layers[shared - 1..]);
+        let layers = &cfg.critic_layers;
+        let torso =
+            LayerNormMlp::with_members(&(p / "shared"), obs_dim, &layers[..shared], members);
+        let heads =
+            HeadStack::with_members(&(p / "heads"), num_heads, &layers[shared - 1..], members);
         Self { torso, heads }
     }
 
@@ -33,6 +50,13 @@ impl ValueNet {
     /// `obs [N, O] -> [N, C]`.
     pub fn forward(&self, obs: &Tensor) -> Tensor {
         self.heads.forward(&self.torso.forward(obs))
+    }
+
+    /// Every member's values on its own states.
+    /// # Shapes
+    /// `obs [P, N, O] -> [P, N, C]`.
+    pub fn forward_members(&self, obs: &Tensor) -> Tensor {
+        self.heads.forward_members(&self.torso.forward_members(obs))
     }
 }
 

@@ -17,6 +17,7 @@
 //! the actors and the learner and waits for them.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -299,10 +300,24 @@ pub async fn train_population(
         }
     };
 
+    // Off-policy members share one session per actor, stepped by one call: their
+    // learner allowances grow with the same env steps, so acting in lockstep is what
+    // each would do alone. An on-policy member's allowance follows its own episode
+    // ends (each ends an unroll), so each gets its own actor and session and acts, as
+    // alone, only with the policy of every step it has allowed.
+    let parties: Vec<Vec<usize>> = if layout.on_policy {
+        (0..runs.len()).map(|p| vec![p]).collect()
+    } else {
+        vec![(0..runs.len()).collect()]
+    };
+    let actors_left: Vec<Arc<AtomicUsize>> = runs
+        .iter()
+        .map(|_| Arc::new(AtomicUsize::new(cfg.env.num_actors)))
+        .collect();
     let mut actors = Vec::new();
-    for a in 0..cfg.env.num_actors {
-        let mut members = Vec::with_capacity(runs.len());
-        for run in &runs {
+    for (a, party) in (0..cfg.env.num_actors).flat_map(|a| parties.iter().map(move |p| (a, p))) {
+        let mut members = Vec::with_capacity(party.len());
+        for run in party.iter().map(|&p| &runs[p]) {
             let mut policy = ActorPolicy::new(&run.cfg.learner.network, &dims, Device::Cpu);
             policy
                 .load(&run.params.borrow())
@@ -321,25 +336,42 @@ pub async fn train_population(
                     .map(|g| (g, StreamKey::new(seed, Purpose::ActingPreference, a as u64))),
             });
         }
+        let first = &runs[party[0]];
         let ctx = ActorContext {
             id: a,
             server: servers.assign(a),
             servers: servers.clone(),
             make: MakeOptions {
                 num_workers: cfg.env.workers,
-                ..make_options(&cfg, cfg.env.num_envs, cfg.seed + 1000 * a as u64)
+                ..make_options(
+                    &first.cfg,
+                    cfg.env.num_envs,
+                    first.cfg.seed + 1000 * a as u64,
+                )
             },
             members,
-            first_act: runs[0].first_acts.get(a).copied().unwrap_or(0),
+            first_act: first.first_acts.get(a).copied().unwrap_or(0),
             layout,
             total_env_steps: cfg.run.total_env_steps,
         };
         let stop_all = stop_all.clone();
+        let ended: Vec<(Arc<AtomicUsize>, Arc<Schedule>)> = party
+            .iter()
+            .map(|&p| (actors_left[p].clone(), runs[p].schedule.clone()))
+            .collect();
         actors.push(tokio::spawn(async move {
             // A panic stops the run as an error does, at once and with its message:
             // the other actors and the learner stop, and the run exits non-zero.
             match AssertUnwindSafe(run_actor(ctx)).catch_unwind().await {
-                Ok(Ok(())) => {}
+                Ok(Ok(())) => {
+                    // A member whose actors have all spent its budget ends now, so
+                    // that the learner's lockstep no longer waits for its steps.
+                    for (left, schedule) in ended {
+                        if left.fetch_sub(1, Ordering::SeqCst) == 1 {
+                            schedule.stop(None);
+                        }
+                    }
+                }
                 Ok(Err(e)) => stop_all(Some(format!("actor {a}: {e}"))),
                 Err(panic) => stop_all(Some(format!(
                     "actor {a} panicked: {}",
