@@ -2,7 +2,9 @@
 //! trained as one batched program (`Learner::population`) against P single learners
 //! (`Learner::new`, one after the other), at Deep Sea Treasure's, the pendulum
 //! preset's and humanoid run's sizes (`configs/mompo/{dst,pendulum,humanoid-run}.toml`:
-//! networks, batch, T, M as shipped). Members differ in seed and ε as a sweep's do.
+//! networks, batch, T, M as shipped), and MO-V-MPO's DST and pendulum presets
+//! (`configs/movmpo/{dst,pendulum}.toml`: unrolls, epochs and minibatches as shipped).
+//! Members differ in seed and ε as a sweep's do.
 //!
 //! Each member gets its own fixed random batch (real observations need no env: the
 //! step's cost does not depend on their values). Each round times `--steps` population
@@ -13,9 +15,10 @@
 //! t(P) = F + m P (least squares over the sizes run): F is what a population shares,
 //! m what each member adds.
 //!
-//! Run: `cargo bench -p agent --bench population_step [-- --task dst|pendulum|humanoid|all
+//! Run: `cargo bench -p agent --bench population_step [-- --task
+//! dst|pendulum|dst-vmpo|pendulum-vmpo|humanoid|all
 //! --sizes 1,2,6,16,39 --steps 10 --rounds 5 --threads 1 --device cpu|cuda]`.
-//! Defaults: all three tasks; sizes 1,2,6,16,39 (humanoid 1,2,8, with 1 step in 2
+//! Defaults: all five tasks; sizes 1,2,6,16,39 (humanoid 1,2,8, with 1 step in 2
 //! rounds on a CPU); one thread; the CPU.
 #![allow(clippy::print_stdout, reason = "a benchmark reports on stdout")]
 
@@ -55,6 +58,22 @@ fn tasks() -> Vec<Task> {
         Task {
             name: "pendulum",
             preset: "configs/mompo/pendulum.toml",
+            dims: dims(
+                3,
+                ActionKind::Continuous { dim: 1 },
+                ["task", "action_norm"],
+            ),
+            default_sizes: vec![1, 2, 6, 16, 39],
+        },
+        Task {
+            name: "dst-vmpo",
+            preset: "configs/movmpo/dst.toml",
+            dims: dims(2, ActionKind::Discrete { n: 4 }, ["time", "treasure"]),
+            default_sizes: vec![1, 2, 6, 16, 39],
+        },
+        Task {
+            name: "pendulum-vmpo",
+            preset: "configs/movmpo/pendulum.toml",
             dims: dims(
                 3,
                 ActionKind::Continuous { dim: 1 },

@@ -2,7 +2,8 @@
 //!
 //! `learner.device = "auto"` (the default) runs the learner on CUDA when libtorch sees a
 //! GPU *and* a step's largest part, the critic over every sampled action (MPO) or every
-//! state (V-MPO), is at least `GPU_MIN_STEP_MACS` multiply-adds: a small step is bound
+//! state (V-MPO), summed over a population's members, is at least `GPU_MIN_STEP_MACS`
+//! multiply-adds: a small step is bound
 //! by kernel launches, and on the lent H100 the Deep Sea Treasure step (about 2e7
 //! multiply-adds) took 23-47 ms against a few on two CPU cores, while the humanoid step
 //! (4e10) took 10 ms against 1.2 s. `cpu` and `cuda` force the choice. Tests construct
@@ -48,8 +49,19 @@ pub fn critic_step_macs(cfg: &LearnerConfig, dims: &LearnerDims) -> f64 {
     rows * (first + rest)
 }
 
-/// The learner's device for `cfg` (see the module docs).
-pub fn choose_device(cfg: &LearnerConfig, dims: &LearnerDims) -> Result<Device, ConfigError> {
+/// Whether `auto` puts a learner of `members` members of `cfg` on a GPU when there is
+/// one: a population's step does every member's critic pass, so it is `members` times
+/// one member's size.
+pub fn step_fills_a_gpu(cfg: &LearnerConfig, dims: &LearnerDims, members: usize) -> bool {
+    critic_step_macs(cfg, dims) * members as f64 >= GPU_MIN_STEP_MACS
+}
+
+/// The device of a learner of `members` members of `cfg` (see the module docs).
+pub fn choose_device(
+    cfg: &LearnerConfig,
+    dims: &LearnerDims,
+    members: usize,
+) -> Result<Device, ConfigError> {
     let gpu = tch::Cuda::is_available();
     match cfg.device {
         DeviceChoice::Cpu => Ok(Device::Cpu),
@@ -59,9 +71,7 @@ pub fn choose_device(cfg: &LearnerConfig, dims: &LearnerDims) -> Result<Device, 
             requirement: "\"cpu\" or \"auto\" on a machine where libtorch sees no GPU".into(),
             got: "\"cuda\"".into(),
         }),
-        DeviceChoice::Auto if gpu && critic_step_macs(cfg, dims) >= GPU_MIN_STEP_MACS => {
-            Ok(Device::Cuda(0))
-        }
+        DeviceChoice::Auto if gpu && step_fills_a_gpu(cfg, dims, members) => Ok(Device::Cuda(0)),
         DeviceChoice::Auto => Ok(Device::Cpu),
     }
 }
@@ -133,10 +143,12 @@ mod tests {
             critic_step_macs(&dst, &dims(2, ActionKind::Discrete { n: 4 })),
             1024.0 * 17280.0
         );
-        assert_eq!(
-            choose_device(&dst, &dims(2, ActionKind::Discrete { n: 4 })).unwrap(),
-            Device::Cpu
-        );
+        let dst_dims = dims(2, ActionKind::Discrete { n: 4 });
+        assert_eq!(choose_device(&dst, &dst_dims, 1).unwrap(), Device::Cpu);
+        // The full Fig. 5 grid as one population (39 members, 6.9e8) stays small; 57
+        // members (1.009e9) would fill a GPU.
+        assert!(!step_fills_a_gpu(&dst, &dst_dims, 56));
+        assert!(step_fills_a_gpu(&dst, &dst_dims, 57));
         // Humanoid run (Table 3): 9 * 512 * 20 rows * (88 * 500 + 500 * 500 + 500 * 400 + 400).
         let mut humanoid = LearnerConfig {
             network: NetworkConfig {
@@ -150,11 +162,11 @@ mod tests {
         assert!(macs > GPU_MIN_STEP_MACS);
         humanoid.device = DeviceChoice::Cpu;
         assert_eq!(
-            choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 })).unwrap(),
+            choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 }), 1).unwrap(),
             Device::Cpu
         );
         humanoid.device = DeviceChoice::Cuda;
-        let got = choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 }));
+        let got = choose_device(&humanoid, &dims(67, ActionKind::Continuous { dim: 21 }), 1);
         if tch::Cuda::is_available() {
             assert_eq!(got.unwrap(), Device::Cuda(0));
         } else {

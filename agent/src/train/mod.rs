@@ -217,7 +217,7 @@ pub async fn train_population(
     }
     let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
 
-    let device = choose_device(&cfg.learner, &dims)?;
+    let device = choose_device(&cfg.learner, &dims, cfgs.len())?;
     let Opened {
         runs: opened,
         learner,
