@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # What surviving and spreading costs a sweep, end to end: configs/sweeps/dst-quick.toml
-# (6 settings, one seed) at a short budget, one run at a time (`parallel = 1`, so walls
-# add up), against one env_server on loopback that every command shares:
+# (9 settings, one seed) at a short budget, one run at a time (`parallel = 1`,
+# `population = 1`, so walls add up), against one env_server on loopback that every
+# command shares:
 #   1. the unsharded sweep;
 #   2. `--shard 0/2` and `--shard 1/2` one after the other, then `--report` of the two;
 #   3. `--resume` of the finished sweep (what a restart of a finished shard costs);
@@ -25,7 +26,7 @@ cleanup() {
 }
 trap cleanup EXIT
 
-sed 's|^base = "../mompo/dst.toml"|base = "'"$PWD"'/configs/mompo/dst.toml"|; s|^parallel = 3|parallel = 1|' \
+sed 's|^base = "../mompo/dst.toml"|base = "'"$PWD"'/configs/mompo/dst.toml"|; s|^parallel = [0-9]*|parallel = 1\npopulation = 1|' \
   configs/sweeps/dst-quick.toml >"$work/sweep.toml"
 .venv/bin/python -m env_server --port 0 >"$work/server.out" 2>"$work/server.err" &
 server=$!

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up everything (scripts/setup.sh) and run the main job on its defaults: start a
-# local env_server, train MO-MPO on Deep Sea Treasure for six epsilon_treasure /
+# local env_server, train MO-MPO on Deep Sea Treasure for nine epsilon_treasure /
 # epsilon_time ratios (configs/sweeps/dst-quick.toml, a few minutes on 2 cores),
 # and print which treasure each policy reaches, the front's hypervolume, and where
 # the plots are. An optional argument names another sweep file.
