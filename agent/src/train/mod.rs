@@ -12,44 +12,39 @@
 //! learner of P members, actors with one env session for all of them, and a folder
 //! per run as `train` writes it; `train` is a population of one.
 //!
-//! `setup` opens the runs and builds their schedules, `progress` draws the bar and
-//! takes the signals, `finish` evaluates and writes the reports; this module starts
-//! the actors and the learner and waits for them.
+//! `setup` opens the runs and builds their schedules, `actors` starts the actors,
+//! `progress` draws the bar and takes the signals, `finish` evaluates and writes the
+//! reports; this module starts the learner and waits for them all.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use serde::Serialize;
-use tch::Device;
 use tokio::sync::watch;
 
-use crate::actor::{ActorContext, ActorMember, run_actor};
 use crate::algo::LearnerStats;
 use crate::algo::objectives::{LearnerDims, check_declared};
 use crate::algo::preferences::PreferenceGrid;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
+use crate::env::EpisodeSummary;
 use crate::env::pool::{ActorServers, ServerPool};
-use crate::env::{EpisodeSummary, MakeOptions};
 use crate::error::EnvError;
 use crate::front::FrontSummary;
 use crate::learner::{LearnerContext, LearnerDone, LearnerLoopError, MemberLoop, run_learner};
 use crate::metrics::RunFiles;
-use crate::nets::{ActorPolicy, PolicySnapshot};
+use crate::nets::PolicySnapshot;
 use crate::plot::PlotError;
-use crate::random::{Purpose, StreamKey};
 use crate::resume::Checkpointer;
 use crate::run_config::TrainConfig;
 use crate::schedule::Schedule;
-use crate::session::{make_options, probe_spec};
+use crate::session::probe_spec;
 use crate::solve::SolveRecord;
 use crate::video::{VideoPlan, VideoReport};
-use futures::FutureExt;
-use std::panic::AssertUnwindSafe;
 use videos::{PeriodicContext, record_periodically};
 
+mod actors;
 mod curves;
 mod finish;
 mod front;
@@ -57,6 +52,7 @@ mod progress;
 mod setup;
 mod videos;
 
+use actors::{ActorPlan, spawn_actors};
 use finish::finish_member;
 use progress::{progress_bar, spawn_ticker};
 use setup::{
@@ -300,86 +296,17 @@ pub async fn train_population(
         }
     };
 
-    // Off-policy members share one session per actor, stepped by one call: their
-    // learner allowances grow with the same env steps, so acting in lockstep is what
-    // each would do alone. An on-policy member's allowance follows its own episode
-    // ends (each ends an unroll), so each gets its own actor and session and acts, as
-    // alone, only with the policy of every step it has allowed.
-    let parties: Vec<Vec<usize>> = if layout.on_policy {
-        (0..runs.len()).map(|p| vec![p]).collect()
-    } else {
-        vec![(0..runs.len()).collect()]
-    };
-    let actors_left: Vec<Arc<AtomicUsize>> = runs
-        .iter()
-        .map(|_| Arc::new(AtomicUsize::new(cfg.env.num_actors)))
-        .collect();
-    let mut actors = Vec::new();
-    for (a, party) in (0..cfg.env.num_actors).flat_map(|a| parties.iter().map(move |p| (a, p))) {
-        let mut members = Vec::with_capacity(party.len());
-        for run in party.iter().map(|&p| &runs[p]) {
-            let mut policy = ActorPolicy::new(&run.cfg.learner.network, &dims, Device::Cpu);
-            policy
-                .load(&run.params.borrow())
-                .map_err(|e| TrainError::Stopped(e.to_string()))?;
-            let seed = run.cfg.seed;
-            members.push(ActorMember {
-                policy,
-                sampling: StreamKey::new(seed, Purpose::Acting, a as u64),
-                first_seed: seed + 1000 * a as u64,
-                env_seeds: StreamKey::new(seed, Purpose::EnvSeeds, a as u64),
-                params: run.params.clone(),
-                schedule: run.schedule.clone(),
-                files: run.files.clone(),
-                preferences: grid
-                    .clone()
-                    .map(|g| (g, StreamKey::new(seed, Purpose::ActingPreference, a as u64))),
-            });
-        }
-        let first = &runs[party[0]];
-        let ctx = ActorContext {
-            id: a,
-            server: servers.assign(a),
-            servers: servers.clone(),
-            make: MakeOptions {
-                num_workers: cfg.env.workers,
-                ..make_options(
-                    &first.cfg,
-                    cfg.env.num_envs,
-                    first.cfg.seed + 1000 * a as u64,
-                )
-            },
-            members,
-            first_act: first.first_acts.get(a).copied().unwrap_or(0),
+    let actors = spawn_actors(
+        &ActorPlan {
+            cfg: &cfg,
+            runs: &runs,
+            dims: &dims,
+            servers: &servers,
+            grid: grid.as_ref(),
             layout,
-            total_env_steps: cfg.run.total_env_steps,
-        };
-        let stop_all = stop_all.clone();
-        let ended: Vec<(Arc<AtomicUsize>, Arc<Schedule>)> = party
-            .iter()
-            .map(|&p| (actors_left[p].clone(), runs[p].schedule.clone()))
-            .collect();
-        actors.push(tokio::spawn(async move {
-            // A panic stops the run as an error does, at once and with its message:
-            // the other actors and the learner stop, and the run exits non-zero.
-            match AssertUnwindSafe(run_actor(ctx)).catch_unwind().await {
-                Ok(Ok(())) => {
-                    // A member whose actors have all spent its budget ends now, so
-                    // that the learner's lockstep no longer waits for its steps.
-                    for (left, schedule) in ended {
-                        if left.fetch_sub(1, Ordering::SeqCst) == 1 {
-                            schedule.stop(None);
-                        }
-                    }
-                }
-                Ok(Err(e)) => stop_all(Some(format!("actor {a}: {e}"))),
-                Err(panic) => stop_all(Some(format!(
-                    "actor {a} panicked: {}",
-                    panic_message(panic.as_ref())
-                ))),
-            }
-        }));
-    }
+        },
+        &stop_all,
+    )?;
 
     // Periodic videos follow a single run's policy.
     let videos = options
