@@ -18,6 +18,16 @@
 //! On-policy members each get actors of their own (`train::train_population`): their
 //! learner allowances follow their own episode ends, and an actor stepping several of
 //! them would act for one with a policy its learner step has not yet replaced.
+//!
+//! **Acting while the learner trains** (off-policy): an actor computes step j + 1
+//! (policy forwards and the env call) while the learner takes the steps that step j
+//! allowed, then waits for those steps and commits step j + 1 (replay, counts, logs).
+//! The learner thus waits for a commit, never for the env, and step j + 1 acts with
+//! the policy of the steps allowed before step j: one actor step older than acting
+//! after the learner would give (Acme's actors act with policies several learner
+//! steps old). Which policy acts at each step and which transitions each learner step
+//! can sample stay fixed, so a run still reproduces. On-policy actors act only after
+//! the learner's steps: each batch is acted by the policy the previous one produced.
 
 use std::sync::Arc;
 
@@ -269,6 +279,21 @@ fn split_step(step: &crate::env::StepResult, p: usize, b: usize) -> MemberStep<'
     }
 }
 
+/// Waits until the learner has taken every step the committed env steps allow (the
+/// member allowing the fewest), then loads each member's policy published by then.
+async fn catch_up(schedules: &[&Schedule], members: &mut [ActorMember]) -> Result<(), EnvError> {
+    wait_for_population_learner(schedules).await;
+    for m in members {
+        if m.params.has_changed().unwrap_or(false) {
+            let snapshot = m.params.borrow_and_update().clone();
+            m.policy
+                .load(&snapshot)
+                .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+        }
+    }
+    Ok(())
+}
+
 /// Run until every member's env-step budget is spent or its run stops.
 pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     let ActorContext {
@@ -296,6 +321,10 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         total_env_steps,
     };
     let o = layout.obs_dim;
+    // Off-policy, an actor steps its envs while the learner takes the steps that its
+    // previous step allowed, and commits the new step once they are taken (module
+    // docs); on-policy, each step acts with the policy of every step allowed so far.
+    let pipelined = !layout.on_policy;
     let mut conds: Vec<Option<Conditioner>> = members
         .iter()
         .map(|m| {
@@ -323,18 +352,10 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     // would otherwise hold it (and its simulators) until its lease runs out.
     let result: Result<(), EnvError> = async {
         let map = ActionMap::new(&live.env.spec().action_space)?;
+        // Waiting before the first act makes a resumed actor wait, as the stopped
+        // one was waiting, for the learner steps its checkpoint allowed.
+        catch_up(&sessions.schedules, &mut members).await?;
         loop {
-            // Waiting before acting (not after) makes a resumed actor wait, as the
-            // stopped one was waiting, for the learner steps its checkpoint allowed.
-            wait_for_population_learner(&sessions.schedules).await;
-            for m in &mut members {
-                if m.params.has_changed().unwrap_or(false) {
-                    let snapshot = m.params.borrow_and_update().clone();
-                    m.policy
-                        .load(&snapshot)
-                        .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
-                }
-            }
             if sessions.ended() {
                 break;
             }
@@ -365,6 +386,9 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 }
                 Err(e) => return Err(e),
             };
+            if pipelined {
+                catch_up(&sessions.schedules, &mut members).await?;
+            }
             let width = replay_actions.len() / (b * members.len());
             for (p, (m, cond)) in members.iter().zip(conds.iter_mut()).enumerate() {
                 let ms = split_step(&step, p, b);
@@ -385,6 +409,9 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                     ),
                     (id, acts, b, layout),
                 )?;
+            }
+            if !pipelined {
+                catch_up(&sessions.schedules, &mut members).await?;
             }
         }
         Ok(())

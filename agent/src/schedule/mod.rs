@@ -5,9 +5,10 @@
 //! learner may take `floor((env_steps - min_replay) * ratio)` steps in total.
 //! On-policy ([`Pace::OnPolicy`]): the learner may take `floor(unrolls inserted /
 //! batch_size)` steps, each consuming one batch. Either way actors wait until the
-//! learner has taken the steps allowed so far before stepping further (on-policy, the
-//! next batch is therefore acted by the policy that the last batch produced), and the
-//! learner waits for env steps. With one actor the interleaving is therefore fixed,
+//! learner has taken the steps allowed so far before committing a further step
+//! (off-policy actors compute that step meanwhile, `actor` module; on-policy ones only
+//! then act, so the next batch is acted by the policy that the last batch produced),
+//! and the learner waits for env steps. With one actor the interleaving is therefore fixed,
 //! and a run with the same config and seed reproduces its learning curve on the same
 //! machine.
 //!

@@ -87,8 +87,9 @@ pub struct SweepConfig {
     /// Override of the base's run.total_env_steps.
     #[serde(default)]
     pub total_env_steps: Option<u64>,
-    /// Runs trained at the same time. One run alternates actor and learner (the
-    /// schedule's lockstep), so 2-3 keep two cores busy; set learner.num_threads = 1.
+    /// Populations (or single runs) trained at the same time. With
+    /// learner.num_threads = 1 each learner is one thread, and an off-policy run's
+    /// actors step its envs while it trains, so one per core keeps the cores busy.
     /// Every run draws from its own random streams, so `parallel` changes no result.
     #[serde(default = "default_parallel")]
     pub parallel: usize,
