@@ -6,7 +6,8 @@
 //!    the N = (T+1)B states (noise from the learner's `NoiseSource`; all A actions for
 //!    categorical policies) and the target critic scores them: `Q' [M, N, C]`. V(s) is
 //!    their mean (pi_old-weighted sum for categorical). Retrace targets for the T*B
-//!    taken pairs use the target critic, the target policy's log-probabilities and
+//!    taken pairs use the target critic (categorical: its scores of all actions,
+//!    gathered), the target policy's log-probabilities and
 //!    c = min(1, pi_old/b). The online critic is regressed on them (0.5 * squared
 //!    error, mean over real pairs, summed over heads), one Adam step. Padding after
 //!    an episode's end (`valid` 0) is not regressed.
@@ -115,9 +116,20 @@ impl Learner {
                 }
             };
             let v_next = v_all.reshape([p, t_len + 1, b, heads]).narrow(1, 1, t_len);
-            let q_taken = target_critic
-                .forward_members(&obs_taken, &act_taken)
-                .reshape([p, t_len, b, heads]);
+            let q_taken = match &log_prior {
+                // Every action's Q is scored already: the taken ones are a gather.
+                Some(_) => {
+                    let index = act_taken
+                        .reshape([p, 1, t_len * b, 1])
+                        .expand([p, 1, t_len * b, heads], false);
+                    critic_q
+                        .narrow(2, 0, t_len * b)
+                        .gather(1, &index, false)
+                        .squeeze_dim(1)
+                }
+                None => target_critic.forward_members(&obs_taken, &act_taken),
+            }
+            .reshape([p, t_len, b, heads]);
             let target_log_probs = target_out
                 .narrow_states(t_len * b)
                 .log_prob(&act_taken)

@@ -36,8 +36,11 @@ const CHUNK_ROWS: i64 = 4608;
 /// cache: ELU and the bias add ran 2x slower per value than one member's). Measured
 /// with `population_step` (DST, P = 6 / 16, one thread): all members at once 0.94 /
 /// 0.92 of the singles' speed, 2^20 values 1.11 / 1.18, 2^18 (one member's
-/// `[2, 1024, 128]`) 1.63 / 1.42, 2^16 1.46 / 1.39.
-const MEMBER_CHUNK_VALUES: i64 = 1 << 18;
+/// `[2, 1024, 128]`) 1.63 / 1.42, 2^16 1.46 / 1.39. With (64, 64) critics (one member
+/// 2^17 values) the DST step at P = 5 took 9.1 ms in chunks of two members (2^18),
+/// 7.7-8.3 ms one member at a time (2^17) and 11.5 ms in chunks of eight (2^20);
+/// splitting one member's actions further did not help.
+const MEMBER_CHUNK_VALUES: i64 = 1 << 17;
 
 /// C critic heads on a shared first layer (and `critic_shared_layers - 1` more).
 #[derive(Debug)]
