@@ -357,6 +357,11 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         catch_up(&sessions.schedules, &mut members).await?;
         loop {
             if sessions.ended() {
+                // The run ends once the learner has taken the steps the last commit
+                // allowed (acting after the learner, the last wait did this).
+                if pipelined {
+                    wait_for_population_learner(&sessions.schedules).await;
+                }
                 break;
             }
             let (mut actions, mut log_probs) = (Vec::new(), Vec::new());
