@@ -31,6 +31,24 @@ async fn the_quick_sweep_reaches_nine_treasures_as_populations() {
     .unwrap();
     server.stop().await.unwrap();
     assert_eq!(s.points.len(), 9);
+    // Every run takes all the learner steps its env steps allow (the pace's formula,
+    // schedule/mod.rs), its last ones included: actors that step their envs while the
+    // learner trains must not end a run before it has caught up.
+    let r = &base.run;
+    let allowed = ((r.total_env_steps - r.min_replay_transitions as u64) as f64
+        * r.learner_steps_per_env_step)
+        .floor() as u64;
+    for p in &s.points {
+        let text = std::fs::read_to_string(p.run_dir.join("summary.json")).unwrap();
+        let summary: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(summary["env_steps"].as_u64(), Some(r.total_env_steps));
+        assert_eq!(
+            summary["learner_steps"].as_u64(),
+            Some(allowed),
+            "{:?}",
+            p.run_dir
+        );
+    }
     // The treasure each deterministic policy collects (return index 1), matched to
     // the env's list; a policy that loops collects none.
     let mut reached: Vec<f64> = s
