@@ -157,7 +157,7 @@ pub struct LearnerContext {
     pub learner: Learner,
     /// Each member's run, in member order.
     pub members: Vec<MemberLoop>,
-    /// Learner steps between publications.
+    /// Learner steps between publications beyond the catch-up ones (`run_learner`).
     pub publish_period: u64,
     /// Learner steps between checkpoints.
     pub checkpoint_period: u64,
@@ -246,6 +246,12 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                 .into_iter()
                 .map(|b| b.unwrap_or_else(|| stand_in.to_device(device)))
                 .collect();
+            // Actors load policies only once the learner has caught up (a population's
+            // actor: with any running member, `wait_for_population_learner`), so those
+            // steps always publish; `publish_period` adds publications in between.
+            let actors_may_load = members
+                .iter()
+                .any(|m| m.done.is_none() && m.run.schedule.next_step_catches_up());
             let all_stats = learner.step_members(&batches)?;
             let step_ms = t0.elapsed().as_secs_f64() * 1e3;
             let n = learner.step_count();
@@ -254,7 +260,7 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                     continue;
                 }
                 let run = &m.run;
-                if n % publish_period == 0 {
+                if actors_may_load || n % publish_period == 0 {
                     run.params
                         .send_replace(Arc::new(learner.member_policy_snapshot(p)));
                 }

@@ -85,7 +85,10 @@ pub struct RunConfig {
     pub learner_steps_per_env_step: f64,
     /// Off-policy only: transitions in the replay before the learner starts.
     pub min_replay_transitions: usize,
-    /// Learner steps between policy publications to the actors.
+    /// Learner steps between extra policy publications. The learner always publishes
+    /// when it has taken every step the env steps allow, the only moment an actor
+    /// loads a policy; these add publications in between (a periodic video takes the
+    /// latest). 1 publishes after every step, the earlier default.
     pub publish_period: u64,
     /// Learner steps between checkpoints (one is also written at exit).
     pub checkpoint_period: u64,
@@ -116,7 +119,7 @@ impl Default for RunConfig {
             total_env_steps: 100_000,
             learner_steps_per_env_step: 0.125,
             min_replay_transitions: 1_000,
-            publish_period: 1,
+            publish_period: 1_000,
             checkpoint_period: 1_000,
             checkpoint_replay: true,
             log_period: 50,

@@ -317,6 +317,15 @@ impl Schedule {
         c.stop || c.learner_steps >= self.allowed(&c, fill)
     }
 
+    /// Whether the learner's next step leaves it caught up (or the run stops): the
+    /// step after which a waiting actor may load a policy, so one the learner must
+    /// publish. Only a commit, which waits for the catch-up, can raise the allowance.
+    pub fn next_step_catches_up(&self) -> bool {
+        let fill = self.fill();
+        let c = self.lock();
+        c.stop || c.learner_steps + 1 >= self.allowed(&c, fill)
+    }
+
     /// Whether the run is stopping.
     pub fn stopping(&self) -> bool {
         self.lock().stop
