@@ -8,6 +8,7 @@ use std::path::Path;
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
+use agent::sweep::{FrontSummary, SweepConfig};
 
 /// `configs/smoke/dst.toml` (a seconds-long DST run) writing its runs under `runs_dir`.
 pub fn smoke_config(runs_dir: &Path) -> TrainConfig {
@@ -61,4 +62,15 @@ impl Harness {
             .expect("client connects");
         Harness { server, client }
     }
+}
+
+/// Runs `sweep` (its base config `base`) against one local server, no resume.
+pub async fn run_sweep(
+    sweep: &SweepConfig,
+    base: &TrainConfig,
+    server: &LocalServer,
+) -> FrontSummary {
+    agent::sweep::sweep(sweep, base, &[server.address().to_string()], false, None)
+        .await
+        .unwrap()
 }

@@ -20,15 +20,7 @@ async fn the_quick_sweep_reaches_nine_treasures_as_populations() {
     // The file itself: nine settings in populations, none capped to single runs.
     assert_eq!(sweep_cfg.parallel, 2);
     assert_ne!(sweep_cfg.population, Some(1));
-    let s = agent::sweep::sweep(
-        &sweep_cfg,
-        &base,
-        &[server.address().to_string()],
-        false,
-        None,
-    )
-    .await
-    .unwrap();
+    let s = integration_tests::run_sweep(&sweep_cfg, &base, &server).await;
     server.stop().await.unwrap();
     assert_eq!(s.points.len(), 9);
     // Every run takes all the learner steps its env steps allow (the pace's formula,

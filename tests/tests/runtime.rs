@@ -41,15 +41,7 @@ y_objective = "treasure"
     )
     .unwrap();
     let (sweep_cfg, base) = SweepConfig::load(&sweep_path).unwrap();
-    let s = agent::sweep::sweep(
-        &sweep_cfg,
-        &base,
-        &[server.address().to_string()],
-        false,
-        None,
-    )
-    .await
-    .unwrap();
+    let s = integration_tests::run_sweep(&sweep_cfg, &base, &server).await;
     assert_eq!(s.points.len(), 2);
     // Each member has its own run, and the population stepped them in lockstep.
     let learner_steps: Vec<u64> = s

@@ -358,10 +358,8 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         loop {
             if sessions.ended() {
                 // The run ends once the learner has taken the steps the last commit
-                // allowed (acting after the learner, the last wait did this).
-                if pipelined {
-                    wait_for_population_learner(&sessions.schedules).await;
-                }
+                // allowed (at once when acting after the learner: its wait did this).
+                wait_for_population_learner(&sessions.schedules).await;
                 break;
             }
             let (mut actions, mut log_probs) = (Vec::new(), Vec::new());

@@ -312,18 +312,21 @@ impl Schedule {
     /// Whether the learner has caught up with the env steps so far (or the run stops):
     /// what `wait_for_learner` waits for.
     pub fn caught_up(&self) -> bool {
-        let fill = self.fill();
-        let c = self.lock();
-        c.stop || c.learner_steps >= self.allowed(&c, fill)
+        self.caught_up_after(0)
     }
 
     /// Whether the learner's next step leaves it caught up (or the run stops): the
     /// step after which a waiting actor may load a policy, so one the learner must
     /// publish. Only a commit, which waits for the catch-up, can raise the allowance.
     pub fn next_step_catches_up(&self) -> bool {
+        self.caught_up_after(1)
+    }
+
+    /// Whether the learner is caught up once it has taken `more` steps beyond those done.
+    fn caught_up_after(&self, more: u64) -> bool {
         let fill = self.fill();
         let c = self.lock();
-        c.stop || c.learner_steps + 1 >= self.allowed(&c, fill)
+        c.stop || c.learner_steps + more >= self.allowed(&c, fill)
     }
 
     /// Whether the run is stopping.
