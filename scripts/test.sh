@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up (scripts/setup.sh), check formatting and lints (cargo fmt, clippy with
-# warnings as errors, ruff), and run every test: env_server's Python tests, then
+# warnings as errors, ruff) and the docs (scripts/docs.sh: the MkDocs site built
+# strictly, the paths it names), and run every test: env_server's Python tests, then
 # the Rust unit, golden and end-to-end tests (which start real env_server
 # processes on 127.0.0.1 with OS-chosen ports). Needs no GPU and no network
 # beyond the package registries used by setup.
@@ -10,10 +11,11 @@ scripts/setup.sh
 # MUJOCO_GL stays as the caller set it: unset, env_server picks a headless OpenGL backend
 # (EGL or OSMesa, which setup.sh installs) so the rendering tests really render.
 
-echo "==> format and lints (cargo fmt, ruff, clippy)"
+echo "==> format and lints (cargo fmt, ruff, docs, clippy)"
 cargo fmt --all --check
 .venv/bin/ruff format --check .
 .venv/bin/ruff check .
+scripts/docs.sh
 cargo clippy --locked --workspace --all-targets -- -D warnings
 
 echo "==> the agent binary (test_ray.py's sweep test runs it)"
