@@ -204,8 +204,8 @@ async fn a_pendulum_run_killed_five_times_learns_as_an_uninterrupted_one() {
     // Solved as the uninterrupted runs are (the preset's run.solve_threshold: the mean
     // task return of 10 training episodes reaches -200, tracked across resumes), and
     // no later than twice the slowest of them. The deterministic evaluation at the
-    // budget is not compared: the preset does not hold after solving (README "Time to
-    // solve": one of five seeds trained to its budget ended collapsed), so a run that
+    // budget is not compared: the preset does not hold after solving (docs/algorithms/mo-mpo.md, "Time
+    // to solve": one of five seeds trained to its budget ended collapsed), so a run that
     // resumed well can end collapsed too, as this one does since actors overlap the
     // learner (task -1577 against the uninterrupted seeds' -136 to -182).
     let solved_at = |s: &serde_json::Value| s["solved"]["env_steps"].as_u64();

@@ -1,6 +1,6 @@
 """The client's connection: a plain or TLS channel, the bearer token, the retry rule,
 and the errors a failed call raises. `env_server.client` builds on it (and re-exports
-the errors). TLS and tokens live here and in the fronts, never in the service (DESIGN.md §8).
+the errors). TLS and tokens live here and in the fronts, never in the service (docs/design.md, "Boundaries").
 """
 
 from __future__ import annotations

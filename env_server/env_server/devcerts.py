@@ -1,4 +1,4 @@
-"""Throwaway TLS material and tokens, for tests and for trying TLS out (README example).
+"""Throwaway TLS material and tokens, for tests and for trying TLS out (the example in docs/scaling-out.md).
 
     python -m env_server.devcerts --out certs --host 127.0.0.1 --host localhost --client learner
 

@@ -2,7 +2,7 @@
 
 Exit status 0 when it answers SERVING, 1 otherwise (with the reason on stderr), so it can be a
 container probe (`deploy/k8s`) or a Docker HEALTHCHECK. Kubernetes' built-in `grpc:` probe
-cannot speak TLS, and a server bound to a non-loopback address serves TLS (README, "Serving
+cannot speak TLS, and a server bound to a non-loopback address serves TLS (docs/env-server.md, "Serving
 other hosts"); this check does, with the CA that signed the server and the name its
 certificate carries. The health service needs no bearer token.
 

@@ -4,7 +4,7 @@
 Steps go over one StepStream rather than a unary Step per call: a message on an open
 stream skips the per-call setup of a unary call, about a quarter of a B = 1 round trip
 (scripts/bench_client.py). A bad action's error status leaves the session usable on the
-server (DESIGN.md §3), so after a failed step the next one opens a new stream.
+server (docs/env-server.md, "The protocol"), so after a failed step the next one opens a new stream.
 """
 
 from __future__ import annotations

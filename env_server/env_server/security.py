@@ -154,6 +154,6 @@ def check_exposure(host: str, tls: ServerTls | None, tokens: Tokens | None, inse
     raise SecurityConfigError(
         f"--host: {host!r} is not a loopback address and the server has no {missing}: any client that "
         "reaches the port could read the traffic, make sessions, and step or close them. Expected "
-        "--tls-cert, --tls-key and --auth-token-file (README: 'Serving other hosts'), or --insecure to "
+        "--tls-cert, --tls-key and --auth-token-file (docs/env-server.md: 'Serving other hosts'), or --insecure to "
         "serve this way anyway on a network you trust"
     )

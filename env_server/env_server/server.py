@@ -6,7 +6,7 @@ Two fronts serve it, chosen by `--front`:
 - `native` (env_server_native, a Rust extension built by scripts/setup.sh): tonic on
   its own thread in this process. The thread that reads a StepRequest off the socket
   runs the Step itself, so a streamed Step crosses no thread inside the server (the
-  README has the B=1 figures). Other RPCs go to the asyncio loop.
+  B=1 figures are in docs/benchmarks/index.md). Other RPCs go to the asyncio loop.
 - `grpcio` (grpc.aio, pure Python): every message travels from grpc core's I/O thread
   through a poller thread to the asyncio loop, 0.15-0.3 ms more per B=1 Step on the
   2-vCPU bench machine.
@@ -308,7 +308,7 @@ async def serve(
     """Serve until `stop` is set; prints `LISTENING <host>:<port>` once bound.
 
     `busy_poll_us` (native front only): how long a StepStream waits for its next request
-    without sleeping; it trades that much CPU per Step for B=1 latency (see README).
+    without sleeping; it trades that much CPU per Step for B=1 latency (see docs/env-server.md, "Fronts").
     `tls` and `tokens` secure the EnvService; a non-loopback `host` needs both unless
     `insecure` (security.check_exposure raises SecurityConfigError).
     """

@@ -11,7 +11,7 @@ Task docstrings carry a `## Reward Space` section (MO-Gymnasium's convention), o
 line per reward entry: `<index>: <name>, <definition>, <range>`. Nothing parses it:
 `objectives` is the declaration the server serves, and the section is where a reader
 finds each formula and its units, so it keeps the same names in the same order.
-README.md "Add an env" walks through writing a Task.
+docs/adding-an-env.md walks through writing a Task.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""Frame strips of the paper's tasks for TASKS.md, rendered through the server's Render RPC.
+"""Frame strips of the paper's tasks for docs/tasks.md, rendered through the server's Render RPC.
 
-    ../.venv/bin/python scripts/task_pictures.py [OUT_DIR]   # default: env_server/docs/tasks
+    ../.venv/bin/python scripts/task_pictures.py [OUT_DIR]   # default: docs/tasks
 
 Starts a local env_server, and for each task makes a session, resets it with seed 0,
 acts for one stretch of an episode and renders four frames across it (the first, two
@@ -58,7 +58,7 @@ def strip(address: str, env_id: str, steps: int, script: list[int] | None) -> Im
 
 
 def main() -> None:
-    out = pathlib.Path(sys.argv[1]) if len(sys.argv) > 1 else HERE.parent / "docs" / "tasks"
+    out = pathlib.Path(sys.argv[1]) if len(sys.argv) > 1 else HERE.parent.parent / "docs" / "tasks"
     out.mkdir(parents=True, exist_ok=True)
     server = subprocess.Popen(
         [sys.executable, "-m", "env_server", "--port", "0", "--log-level", "WARNING"],

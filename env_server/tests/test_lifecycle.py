@@ -140,7 +140,7 @@ def test_version_and_health(address: str, stub) -> None:
 
 
 def test_server_started_from_the_repository_root_is_the_installed_package() -> None:
-    # The README and the agent start `python -m env_server` from the repository root, which
+    # The docs and the agent start `python -m env_server` from the repository root, which
     # holds a folder named env_server/ (this package's project). If that folder were imported
     # as a namespace package, __init__ would not run (no __version__, no OpenGL backend
     # choice) and GetVersion would fail as an internal error.

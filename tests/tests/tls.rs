@@ -1,5 +1,5 @@
 //! The agent against env servers that take TLS and a bearer token: it trains and
-//! evaluates through two of them (the README's two-host example, on loopback), and
+//! evaluates through two of them (the two-host example of docs/scaling-out.md, on loopback), and
 //! fails clearly with a wrong token or a CA that did not sign the servers.
 //!
 //! The CA, certificates and tokens are made here at run time (rcgen); no key is

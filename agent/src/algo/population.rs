@@ -1,4 +1,4 @@
-//! Which learner configs can train as one population (DESIGN.md "Populations"), and
+//! Which learner configs can train as one population (docs/design.md, "Populations"), and
 //! each member's slice of a population's state.
 //!
 //! Members share everything a batched program cannot vary per member: algorithm,

@@ -6,7 +6,7 @@
 //! two families: MO-MPO / scalarized MPO (`mompo.rs`, Q critics with targets) and
 //! MO-V-MPO / scalarized V-MPO (`movmpo.rs`, state-value critics).
 //!
-//! **Populations** (DESIGN.md "Populations"): `Learner::population` trains P members
+//! **Populations** (docs/design.md, "Populations"): `Learner::population` trains P members
 //! that share algorithm, architecture, batch and pace and differ in seed, ε or
 //! scalarization weights as one program: parameters, Adam moments, duals and targets
 //! carry a leading member axis (`nets::Members`), the members' losses are summed

@@ -30,7 +30,8 @@ pub struct MpoConfig {
     /// How eta_k is parameterized for its Adam steps: `"softplus"` (default, Acme's
     /// eta = softplus(p)) or `"log"` (eta = exp(p)), whose steps are relative, so that
     /// eta catches up with a rescaled reward in about log(scale) / dual learning rate
-    /// steps instead of about scale times more (README, "Reward scale").
+    /// steps instead of about scale times more (docs/algorithms/mo-mpo.md, "Reward
+    /// scale: a bandit").
     pub temperature_parameterization: TemperatureParameterization,
     /// A.2: KL constraint beta of the categorical policy (Deep Sea Treasure), 1e-3.
     pub beta_categorical: f64,

@@ -32,7 +32,8 @@ pub struct VmpoConfig {
     /// How eta_k is parameterized for its Adam steps: `"softplus"` (default, Acme's
     /// eta = softplus(p)) or `"log"` (eta = exp(p)), whose steps are relative, so that
     /// eta catches up with a rescaled reward in about log(scale) / dual learning rate
-    /// steps instead of about scale times more (README, "Reward scale").
+    /// steps instead of about scale times more (docs/algorithms/mo-mpo.md, "Reward
+    /// scale: a bandit").
     pub temperature_parameterization: TemperatureParameterization,
     /// KL bound of a categorical policy. Not in the paper (its V-MPO runs are all
     /// Gaussian); 0.01, V-MPO's epsilon_alpha for discrete actions (Song et al. 2020).

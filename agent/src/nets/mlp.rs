@@ -5,7 +5,7 @@
 //! Weights use PyTorch's `nn.Linear` initialisation, uniform(-1/sqrt(fan_in), 1/sqrt(fan_in))
 //! for weight and bias, so the PyTorch reference in `benches/` builds the same networks.
 //!
-//! Population training (DESIGN.md "Populations") gives every layer a member axis:
+//! Population training (docs/design.md, "Populations") gives every layer a member axis:
 //! P members' parameters stacked along a leading axis, so that one batched matmul
 //! runs a layer of all P networks. `forward_members` takes and returns member-first
 //! tensors `[P, R, ..]`. A layer of one member keeps today's unstacked shapes and

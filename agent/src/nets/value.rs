@@ -7,7 +7,7 @@
 //! objective; V-MPO's three-layer 1024 MLP is the same layout with C = 1.
 //!
 //! A population's value nets (`with_members`) are stacked along a member axis, as
-//! its policies and Q critics are (DESIGN.md "Populations").
+//! its policies and Q critics are (docs/design.md, "Populations").
 //!
 //! Shape legend: P members, N states, O observation size, C heads.
 

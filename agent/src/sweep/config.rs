@@ -96,7 +96,7 @@ pub struct SweepConfig {
     /// Most members of one population: jobs whose configs differ only in seed, ε or
     /// scalarization weights (unconditioned, with plain networks: any algorithm) train
     /// as one batched learner with one env session per actor (on-policy: one per
-    /// member) (DESIGN.md "Populations"); each
+    /// member) (docs/design.md, "Populations"); each
     /// job still gets its own run folder. Unset: each such group is split evenly
     /// into `parallel` populations. 1: every job trains alone. `parallel` counts
     /// populations. `agent sweep --population N` overrides it.

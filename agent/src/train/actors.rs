@@ -1,4 +1,4 @@
-//! A population run's actors (Algorithm 2; DESIGN.md "Populations"): which members
+//! A population run's actors (Algorithm 2; docs/design.md, "Populations"): which members
 //! share an env session, and the actor tasks that step them.
 //!
 //! Off-policy members share one session per actor, stepped by one call. On-policy

@@ -8,7 +8,7 @@
 //! writes a checkpoint and the run still writes its summary (marked `interrupted`, no
 //! evaluation), curves and TensorBoard events; a second Ctrl-C exits at once.
 //!
-//! `train_population` trains P runs as one population (DESIGN.md "Populations"): one
+//! `train_population` trains P runs as one population (docs/design.md, "Populations"): one
 //! learner of P members, actors with one env session for all of them, and a folder
 //! per run as `train` writes it; `train` is a population of one.
 //!
@@ -189,7 +189,7 @@ struct MemberRun {
     first_acts: Vec<u64>,
 }
 
-/// Train the runs `cfgs` as one population (DESIGN.md "Populations"): one learner
+/// Train the runs `cfgs` as one population (docs/design.md, "Populations"): one learner
 /// whose members are the runs (`Learner::population`), one env session of P x B
 /// instances per actor, and a folder per run exactly as `train` writes it. The configs
 /// must agree on everything but their seeds, ε and scalarization weights

@@ -1,6 +1,6 @@
 //! Statuses: Python's code names to tonic codes, Python exceptions to statuses (through
 //! the service's own `status_of`, so both fronts report the same thing), and tonic's
-//! oversized-message error to the RESOURCE_EXHAUSTED that DESIGN.md §3 (and grpc core,
+//! oversized-message error to the RESOURCE_EXHAUSTED that docs/env-server.md ("The protocol") (and grpc core,
 //! which the grpc.aio front uses) gives it.
 
 use http::Response;

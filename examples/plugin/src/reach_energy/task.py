@@ -2,7 +2,7 @@
 
 A one-dimensional task with two objectives that pull against each other: big actions
 reach the target sooner, small ones cost less. It is the example of env_server's
-"Add an env" guide (env_server/README.md), not a task of the paper.
+"Add an env" guide (docs/adding-an-env.md), not a task of the paper.
 
 ## Observation
 float32 [1]: the position x, in [-1, 1]. Each episode starts at x ~ Uniform(-1, 1).
