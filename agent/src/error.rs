@@ -1,4 +1,6 @@
-//! Errors of the environment side of the agent (client, spawned server).
+//! Errors of the environment side of the agent (client, spawned server, server
+//! addresses). This module sits below `env`: `env` and its users import these types,
+//! and this module imports nothing of theirs.
 
 use crate::spec::DType;
 
@@ -89,10 +91,48 @@ pub enum EnvError {
     },
     /// A server address (`--server`, `env.servers`) was malformed or resolved to nothing.
     #[error(transparent)]
-    Discovery(#[from] crate::env::discovery::DiscoveryError),
+    Discovery(#[from] DiscoveryError),
     /// Starting or talking to a local env_server process failed.
     #[error("env_server process: {0}")]
     Process(String),
+}
+
+/// A server address that could not be used (`--server`, `env.servers`; parsed and
+/// resolved by `env::discovery`).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DiscoveryError {
+    /// The text is none of the accepted forms.
+    #[error("server address {spec:?}: expected {expected}, got {got}")]
+    Syntax {
+        /// The address as given.
+        spec: String,
+        /// The form that was expected.
+        expected: String,
+        /// What was found instead.
+        got: String,
+    },
+    /// A `dns:` name gave no address.
+    #[error(
+        "server address {spec:?}: expected {name} to resolve to at least one address, got {reason}"
+    )]
+    Lookup {
+        /// The address as given.
+        spec: String,
+        /// The DNS name looked up.
+        name: String,
+        /// The resolver's answer (no records, timeout, ...).
+        reason: String,
+    },
+    /// A `file:` list could not be read or holds no usable address.
+    #[error("server address {spec:?}: expected {expected}, got {got}")]
+    File {
+        /// The address as given.
+        spec: String,
+        /// What the file must hold.
+        expected: String,
+        /// What was read.
+        got: String,
+    },
 }
 
 impl EnvError {

@@ -11,7 +11,7 @@
 //! Module map:
 //! - [`spec`]: plain-Rust env spec (spaces, objectives).
 //! - [`env`]: the `Env` trait, the gRPC client (`env::grpc`, the only code that sees proto types),
-//!   a local env for tests, and a helper that starts a local `env_server` process.
+//!   and a helper that starts a local `env_server` process (tests and demos use a real one).
 //! - `config`, `nets`, `algo`, `checkpoint`: the learner (pure; no tokio, tonic or proto).
 //! - [`random`]: the per-run random streams every draw comes from (keyed by seed and
 //!   purpose), and the one locked use of libtorch's global generator (initialisation).

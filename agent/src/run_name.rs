@@ -9,50 +9,20 @@ use std::io;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
+use time::OffsetDateTime;
+
 /// `t` as `YYYYMMDD-HHMMSS` in UTC (times before 1970 read as 1970-01-01 00:00:00).
 pub fn utc_stamp(t: SystemTime) -> String {
-    let secs = t
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs() as i64);
-    let (days, day_secs) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    let date = civil_from_days(days);
+    let t = OffsetDateTime::from(t.max(UNIX_EPOCH));
     format!(
         "{:04}{:02}{:02}-{:02}{:02}{:02}",
-        date.year,
-        date.month,
-        date.day,
-        day_secs / 3600,
-        day_secs % 3600 / 60,
-        day_secs % 60
+        t.year(),
+        u8::from(t.month()),
+        t.day(),
+        t.hour(),
+        t.minute(),
+        t.second()
     )
-}
-
-/// A proleptic Gregorian calendar date.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct CivilDate {
-    /// Year (may be before 1970).
-    pub year: i64,
-    /// Month, 1 to 12.
-    pub month: u32,
-    /// Day of the month, 1 to 31.
-    pub day: u32,
-}
-
-/// The date `days` after 1970-01-01: Howard Hinnant's `civil_from_days`
-/// (<https://howardhinnant.github.io/date_algorithms.html#civil_from_days>), which counts
-/// in 400-year eras (146 097 days) of years starting on 1 March, so that the leap day
-/// is the last day of its year.
-pub fn civil_from_days(days: i64) -> CivilDate {
-    let z = days + 719_468; // days since 0000-03-01
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097); // day of era, [0, 146096]
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365; // [0, 399]
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100); // day of the March-based year
-    let mp = (5 * doy + 2) / 153; // March = 0 .. February = 11
-    let day = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    CivilDate { year, month, day }
 }
 
 /// Make and return `<parent>/<stem>__<utc_stamp(started)>`, or, when that folder exists
@@ -82,31 +52,18 @@ mod tests {
     use std::time::Duration;
 
     #[test]
-    fn days_since_1970_become_calendar_dates() {
-        // Expected values from Python: (date(y, m, d) - date(1970, 1, 1)).days.
-        let cases = [
-            (0, (1970, 1, 1)),
-            (-1, (1969, 12, 31)),
-            (11_016, (2000, 2, 29)), // a leap day of a year divisible by 400
-            (11_017, (2000, 3, 1)),
-            (20_782, (2026, 11, 25)),
-            (47_541, (2100, 3, 1)), // 2100 has no 29 February: 28 Feb is day 47 540
-        ];
-        for (days, (year, month, day)) in cases {
-            assert_eq!(
-                civil_from_days(days),
-                CivilDate { year, month, day },
-                "day {days}"
-            );
-        }
-    }
-
-    #[test]
     fn stamps_are_utc_seconds() {
         // datetime.fromtimestamp(1795597828.690, timezone.utc) = 2026-11-25 09:10:28.690.
         let t = UNIX_EPOCH + Duration::from_millis(1_795_597_828_690);
         assert_eq!(utc_stamp(t), "20261125-091028");
         assert_eq!(utc_stamp(UNIX_EPOCH), "19700101-000000");
+        assert_eq!(
+            utc_stamp(UNIX_EPOCH - Duration::from_secs(1)),
+            "19700101-000000"
+        );
+        // date(2000, 2, 29) - date(1970, 1, 1) = 11 016 days: a leap day of a year divisible by 400.
+        let t = UNIX_EPOCH + Duration::from_secs(11_016 * 86_400);
+        assert_eq!(utc_stamp(t), "20000229-000000");
         // 23:59:59 on 31 December: the last second before the year changes.
         let t = UNIX_EPOCH + Duration::from_secs(20_819 * 86_400 - 1); // 2027-01-01 is day 20 819
         assert_eq!(utc_stamp(t), "20261231-235959");

@@ -22,49 +22,16 @@ mod resolve;
 
 use resolve::{lookup, read_list};
 
+/// The errors of this module live in [`crate::error`], beside the other env errors
+/// that wrap them, so that `error` depends on nothing above it.
+pub use crate::error::DiscoveryError;
+
 /// The forms a server address may take, for error messages.
 pub const FORMS: &str = "host:port, http://host:port, https://host:port, dns:NAME:PORT, \
                          dns://NAMESERVER_IP[:PORT]/NAME:PORT or file:PATH";
 
 /// Port of a name server given without one.
 const DNS_PORT: u16 = 53;
-
-/// A server address that could not be used.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DiscoveryError {
-    /// The text is none of the accepted forms.
-    #[error("server address {spec:?}: expected {expected}, got {got}")]
-    Syntax {
-        /// The address as given.
-        spec: String,
-        /// The form that was expected.
-        expected: String,
-        /// What was found instead.
-        got: String,
-    },
-    /// A `dns:` name gave no address.
-    #[error(
-        "server address {spec:?}: expected {name} to resolve to at least one address, got {reason}"
-    )]
-    Lookup {
-        /// The address as given.
-        spec: String,
-        /// The DNS name looked up.
-        name: String,
-        /// The resolver's answer (no records, timeout, ...).
-        reason: String,
-    },
-    /// A `file:` list could not be read or holds no usable address.
-    #[error("server address {spec:?}: expected {expected}, got {got}")]
-    File {
-        /// The address as given.
-        spec: String,
-        /// What the file must hold.
-        expected: String,
-        /// What was read.
-        got: String,
-    },
-}
 
 /// One server to connect to: what the channel dials, and the name TLS checks.
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
