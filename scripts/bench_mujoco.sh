@@ -63,17 +63,18 @@ done
 
 out=bench_out/mujoco/$session
 mkdir -p "$out"
-results=$(realpath "$results")
+results=$(realpath -m "$results")
 export MUJOCO_GL=${MUJOCO_GL:-disable}
+# Each run is a process group of its own (set -m), so that an interrupted benchmark stops
+# its runs too (a script's background jobs would otherwise ignore Ctrl-C and go on).
+set -m
+pids=()
+trap 'for p in "${pids[@]}"; do kill -- -"$p" 2>/dev/null || true; done; kill ${server_pid:-} 2>/dev/null; wait' EXIT
 if [[ $sides == *ours* ]]; then
   scripts/setup.sh
   [[ -n ${AGENT:-} ]] || cargo build --locked --release -p agent --bin agent
-  .venv/bin/python -m env_server --host 127.0.0.1 --port 0 --log-level WARNING >"$out/server.log" 2>&1 &
-  server_pid=$!
-  trap 'kill $server_pid 2>/dev/null; wait $server_pid 2>/dev/null' EXIT
-  for _ in $(seq 600); do grep -q LISTENING "$out/server.log" && break; sleep 0.1; done
-  address=$(sed -n 's/^LISTENING //p' "$out/server.log")
-  [[ -n $address ]] || { cat "$out/server.log"; echo "env_server did not start" >&2; exit 1; }
+  source scripts/lib/env_server.sh
+  start_env_server "$out/server.log"
 fi
 [[ $sides == *peers* ]] && scripts/peers/setup.sh
 
@@ -119,7 +120,7 @@ job() {
 
 # The runs, at most $jobs at once (the server is a job of this shell too, so the runs'
 # pids are tracked here); each task's seed runs on both sides before the next seed.
-pids=() failed=0
+failed=0
 reap() {
   local live=() p
   for p in "${pids[@]}"; do

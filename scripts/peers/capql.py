@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import pathlib
 import time
 
 import mo_gymnasium as mo_gym
@@ -89,16 +88,9 @@ class FrontRecorder:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--task", required=True, choices=sorted(results.REFERENCES))
-    ap.add_argument("--seed", type=int, required=True)
-    ap.add_argument("--steps", type=int, default=200_000, help="env steps to train")
-    ap.add_argument("--eval-every", type=int, default=20_000, help="env steps between evaluations (0: final only)")
     ap.add_argument("--eval-weights", type=int, default=11, help="num_eval_weights_for_front")
     ap.add_argument("--eval-episodes", type=int, default=4, help="num_eval_episodes_for_front")
-    ap.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
-    ap.add_argument("--results", type=pathlib.Path, required=True)
-    ap.add_argument("--session", required=True)
-    args = ap.parse_args()
+    args = results.parse_run_args(ap, sorted(results.REFERENCES), steps=200_000, eval_every=20_000)
 
     torch.set_num_threads(args.threads)
     clock = results.Clock()
@@ -131,18 +123,8 @@ def main() -> None:
     )
 
     def row(kind, steps, front, discounted, wall, ev):
-        return results.row(
-            args.task,
-            "CAPQL",
-            args.seed,
-            kind,
-            steps,
-            front=front,
-            front_discounted=discounted,
-            wall_s=wall,
-            eval_s=ev,
-            settings=settings,
-        )
+        fields = {"front": front, "front_discounted": discounted, "wall_s": wall, "eval_s": ev}
+        return results.row(args.task, "CAPQL", args.seed, kind, steps, settings=settings, **fields)
 
     rows = [row("eval", *f) for f in recorder.fronts]
     rows.append(row("final", *recorder.fronts[-1][:3], clock.wall(), clock.eval_s))

@@ -16,6 +16,7 @@ ended (this machine's 2 cores are shared).
 
 from __future__ import annotations
 
+import argparse
 import csv
 import datetime
 import os
@@ -156,6 +157,22 @@ def append(path: pathlib.Path, rows: list[dict], session: str) -> None:
 def read(path: pathlib.Path) -> list[dict]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
+
+
+def parse_run_args(ap: argparse.ArgumentParser, tasks: list[str] | None, steps: int, eval_every: int):
+    """A peer runner's arguments: its own (already on `ap`) and the ones every runner takes."""
+    ap.add_argument("--task", required=True, choices=tasks, help="the Gymnasium or MO-Gymnasium env id")
+    ap.add_argument("--seed", type=int, required=True)
+    ap.add_argument("--steps", type=int, default=steps, help="env steps to train")
+    ap.add_argument("--eval-every", type=int, default=eval_every, help="env steps between evaluations (0: final only)")
+    ap.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
+    ap.add_argument("--results", type=pathlib.Path, required=True, help="results file to append to")
+    ap.add_argument("--session", required=True, help="the session the run belongs to")
+    args = ap.parse_args()
+    for name, least in (("seed", 0), ("steps", 1), ("eval_every", 0), ("threads", 1)):
+        if getattr(args, name) < least:
+            ap.error(f"--{name.replace('_', '-')}: expected at least {least}, got {getattr(args, name)}")
+    return args
 
 
 class Clock:

@@ -16,7 +16,6 @@ there). Rows are appended only when the run finishes.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import time
 
 import gymnasium as gym
@@ -50,16 +49,9 @@ class TimedEval(EvalCallback):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--task", required=True, help="Gymnasium id, e.g. HalfCheetah-v5")
-    ap.add_argument("--seed", type=int, required=True)
-    ap.add_argument("--steps", type=int, default=100_000, help="env steps to train")
-    ap.add_argument("--eval-every", type=int, default=10_000, help="env steps between evaluations (0: final only)")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--learning-starts", type=int, default=10_000)
-    ap.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
-    ap.add_argument("--results", type=pathlib.Path, required=True)
-    ap.add_argument("--session", required=True)
-    args = ap.parse_args()
+    args = results.parse_run_args(ap, None, steps=100_000, eval_every=10_000)
 
     torch.set_num_threads(args.threads)
     clock = results.Clock()
@@ -85,19 +77,8 @@ def main() -> None:
         for steps, ret, wall, ev in callback.points
     ]
     steps, ret, _, _ = callback.points[-1]
-    rows.append(
-        results.row(
-            args.task,
-            "SAC",
-            args.seed,
-            "final",
-            steps,
-            return_=ret,
-            wall_s=clock.wall(),
-            eval_s=clock.eval_s,
-            settings=settings,
-        )
-    )
+    final = {"return_": ret, "wall_s": clock.wall(), "eval_s": clock.eval_s, "settings": settings}
+    rows.append(results.row(args.task, "SAC", args.seed, "final", steps, **final))
     results.append(args.results, rows, args.session)
     print(f"SAC {args.task} seed {args.seed}: return {ret:.1f} at {steps} env steps, {clock.wall():.0f} s")
 
