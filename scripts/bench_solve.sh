@@ -28,12 +28,9 @@ cargo build --locked --release -p agent --bin agent
 export MUJOCO_GL=${MUJOCO_GL:-disable}
 work=$(mktemp -d)
 server_log=$work/server.log
-.venv/bin/python -m env_server --host 127.0.0.1 --port 0 --log-level WARNING >"$server_log" 2>&1 &
-server_pid=$!
-trap 'kill $server_pid 2>/dev/null; wait $server_pid 2>/dev/null; rm -rf "$work"' EXIT
-for _ in $(seq 600); do grep -q LISTENING "$server_log" && break; sleep 0.1; done
-address=$(sed -n 's/^LISTENING //p' "$server_log")
-[[ -n $address ]] || { cat "$server_log"; echo "env_server did not start" >&2; exit 1; }
+source scripts/lib/env_server.sh
+trap 'kill ${server_pid:-} 2>/dev/null; wait ${server_pid:-} 2>/dev/null; rm -rf "$work"' EXIT
+start_env_server "$server_log"
 echo "==> $n runs of $config ${args[*]:-} against $address"
 for seed in $(seq 0 $((n - 1))); do
   target/release/agent train --config "$config" --server "$address" --set "seed=$seed" --set run.stop_on_solve=true \

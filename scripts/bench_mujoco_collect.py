@@ -1,0 +1,90 @@
+#!/usr/bin/env python3
+"""Append one finished `agent train` run of the MuJoCo benchmark to its results file.
+
+    python scripts/bench_mujoco_collect.py RUN_DIR --task HalfCheetah-v5 --seed 0 \
+        --results docs/benchmarks/mujoco-results.csv --session ID --settings "..."
+
+Rows as scripts/peers/results.py describes. Periodic evaluations come from the run's
+eval.csv (`run.eval_period`; none when the run had no such evaluations): on a
+single-objective task the mean return of `--objective`; on a two-objective task (an
+ε-conditioned run: one row per grid point per evaluation) the front of the grid points'
+mean returns, undiscounted and discounted. The final row is the run's end: summary.json's
+evaluation, or for a conditioned run its front (front/points.csv). wall_s is the agent's
+own wall time (summary.json); the periodic rows have none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import pathlib
+
+from peers import results
+
+
+def read_csv(path: pathlib.Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def points(rows: list[dict], prefix: str, objectives: list[str]) -> list[tuple[float, ...]]:
+    return [tuple(float(r[f"{prefix}{o}"]) for o in objectives) for r in rows]
+
+
+def collect(run: pathlib.Path, task: str, seed: int, objective: str, settings: str) -> list[dict]:
+    summary = json.loads((run / "summary.json").read_text())
+    if summary.get("interrupted"):
+        raise SystemExit(f"{run}: the run was interrupted ({summary['interrupted']}); not a finished run")
+    names = summary["objectives"]
+    evals = read_csv(run / "eval.csv") if (run / "eval.csv").exists() else []
+    common = {"settings": settings}
+    wall = {"wall_s": summary["wall_seconds"]}
+    if task not in results.REFERENCES:
+        if objective not in names:
+            raise SystemExit(f"--objective: expected one of the run's objectives {names}, got {objective!r}")
+        ret = summary["eval_return"][names.index(objective)]
+        return [
+            results.row(
+                task, "MO-MPO", seed, "eval", int(r["env_steps"]), return_=float(r[f"return_{objective}"]), **common
+            )
+            for r in evals
+        ] + [results.row(task, "MO-MPO", seed, "final", summary["env_steps"], return_=ret, **common, **wall)]
+
+    if len(names) != 2:
+        raise SystemExit(f"{run}: expected the two objectives of {task}, got {names}")
+    if summary["eval_discount"] != results.GAMMA:
+        raise SystemExit(f"{run}: discounted returns use γ = {summary['eval_discount']}; the benchmark's is 0.99")
+    if summary.get("front") is None:
+        raise SystemExit(f"{run}: no front in summary.json; {task} needs an ε-conditioned run")
+    by_step: dict[int, list[dict]] = {}
+    for r in evals:
+        by_step.setdefault(int(r["env_steps"]), []).append(r)
+
+    def row(kind: str, steps: int, rs: list[dict], **extra: object) -> dict:
+        front, discounted = points(rs, "return_", names), points(rs, "discounted_return_", names)
+        return results.row(task, "MO-MPO", seed, kind, steps, front=front, front_discounted=discounted, **extra)
+
+    rows = [row("eval", steps, rs, **common) for steps, rs in sorted(by_step.items())]
+    return rows + [row("final", summary["env_steps"], read_csv(run / "front" / "points.csv"), **common, **wall)]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", type=pathlib.Path, help="the run directory (holds summary.json)")
+    ap.add_argument("--task", required=True)
+    ap.add_argument("--seed", type=int, required=True)
+    ap.add_argument("--objective", default="reward", help="single-objective tasks: the objective compared with SAC")
+    ap.add_argument("--settings", default="", help="what ran (config and overrides)")
+    ap.add_argument("--results", type=pathlib.Path, required=True)
+    ap.add_argument("--session", required=True)
+    args = ap.parse_args()
+    rows = collect(args.run, args.task, args.seed, args.objective, args.settings)
+    results.append(args.results, rows, args.session)
+    last = rows[-1]
+    score = last["return"] or f"HV {last['hv_discounted']} discounted, {last['hv_undiscounted']} undiscounted"
+    print(f"MO-MPO {args.task} seed {args.seed}: {score} at {last['env_steps']} env steps, {last['wall_s']} s")
+
+
+if __name__ == "__main__":
+    main()
