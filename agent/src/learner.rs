@@ -77,6 +77,9 @@ pub struct LearnerRecord {
     /// KL(pi_old || pi) parts before the update; with a per-dimension KL constraint,
     /// the mean over action dimensions of each (`LearnerStats::policy_kl`).
     pub policy_kl: Vec<f32>,
+    /// The fraction of its M-step the policy kept after the trust region's projection
+    /// (`LearnerStats::policy_step_kept`).
+    pub policy_step_kept: f32,
     /// Milliseconds of the step.
     pub step_ms: f64,
     /// Env steps per second since the previous record (or the start).
@@ -118,6 +121,10 @@ impl LearnerRecord {
                 ));
             }
         }
+        out.push(Scalar::new(
+            "learner/policy_step_kept",
+            f64::from(self.policy_step_kept),
+        ));
         out.push(Scalar::new("learner/step_ms", self.step_ms));
         out.push(Scalar::new(
             "learner/learner_steps",
@@ -280,6 +287,7 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                         estep_kl: stats.estep_kl.clone(),
                         alpha: stats.alpha.clone(),
                         policy_kl: stats.policy_kl.clone(),
+                        policy_step_kept: stats.policy_step_kept,
                         step_ms,
                         env_steps_per_second: env_steps.saturating_sub(previous.1) as f64 / dt,
                         learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,

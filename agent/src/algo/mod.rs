@@ -20,6 +20,7 @@ pub mod noise;
 pub mod objectives;
 pub mod population;
 pub mod preferences;
+pub mod projection;
 pub mod real_states;
 pub mod retrace;
 pub mod state;

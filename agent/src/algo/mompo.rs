@@ -36,6 +36,7 @@ use super::batch::SnippetBatch;
 use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};
 use super::objectives::{QSource, action_norm_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
+use super::projection::{Bounds, kl_ratio, project};
 use super::real_states::{gather_states, masked_half_mse, real_states};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
@@ -206,6 +207,7 @@ impl Learner {
             &estep.temperature_loss,
             fit_states,
         );
+        self.project_policy(&obs_real, &target_out, fit_states);
         let m_step_ms = ms_since(start, self.device);
 
         // 4. Target networks.
@@ -323,6 +325,31 @@ impl Learner {
             None => sampled_estep_with(q, &temperature, &epsilon, states),
             Some(prior) => exact_estep_with(q, prior, &temperature, &epsilon, states),
         }
+    }
+
+    /// Holds each member's policy within `mpo.max_kl_ratio` times its trust region
+    /// after the M-step (`projection.rs`), measured as the M-step measures the KL;
+    /// keeps the fraction of the step each member kept for the step's statistics.
+    fn project_policy(&mut self, obs: &Tensor, target: &PolicyOutput, states: StateMean<'_>) {
+        let s = self.settings;
+        let Some(max_ratio) = s.max_kl_ratio else {
+            return;
+        };
+        let bounds = Bounds {
+            beta_mean: s.beta_mean,
+            beta_cov: s.beta_cov,
+            beta_categorical: s.beta_categorical,
+            constraint: s.kl_constraint,
+        };
+        let policy = &self.policy;
+        let kept = project(
+            &self.policy_vs,
+            &self.target_policy_vs,
+            self.members,
+            max_ratio,
+            || kl_ratio(&policy.forward_members(obs, None), target, &bounds, states),
+        );
+        self.policy_step_kept = Some(kept);
     }
 
     /// `[G, K]` ε table of a conditioned learner.

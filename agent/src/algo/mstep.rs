@@ -83,6 +83,31 @@ pub fn decoupled_kl(online: &GaussianParams, target: &GaussianParams) -> Decoupl
     }
 }
 
+/// The decoupled KLs as the trust region bounds them: averaged over states (each
+/// member's, by `states`), then summed over the D dimensions (`[..]`) or kept per
+/// dimension (`[.., D]`).
+/// # Shapes
+/// `online, target [.., B, D]` (target without gradient).
+pub fn trust_region_kl(
+    online: &GaussianParams,
+    target: &GaussianParams,
+    constraint: KlConstraint,
+    states: StateMean<'_>,
+) -> DecoupledKl {
+    let kl = decoupled_kl(online, target);
+    let constrained = |kl: &Tensor| {
+        let over_states = states.over_states(kl);
+        match constraint {
+            KlConstraint::Summed => over_states.sum_dim_intlist(-1, false, Kind::Float),
+            KlConstraint::PerDimension => over_states,
+        }
+    };
+    DecoupledKl {
+        mean: constrained(&kl.mean),
+        cov: constrained(&kl.cov),
+    }
+}
+
 /// Decoupled Gaussian M-step loss.
 /// # Shapes
 /// `online, target [B, D]`, `actions [M, B, D]`, `weights [M, B]` (no gradient).
@@ -120,16 +145,10 @@ pub fn gaussian_mstep_with(
     let nll = -states
         .over_state_rows(&(weights.detach() * log_lik).sum_dim_intlist(-2, false, Kind::Float))
         .sum(Kind::Float);
-    let kl = decoupled_kl(online, &target);
-    let constrained = |kl: &Tensor| {
-        let over_states = states.over_states(kl);
-        match region.constraint {
-            KlConstraint::Summed => over_states.sum_dim_intlist(-1, false, Kind::Float),
-            KlConstraint::PerDimension => over_states,
-        }
-    };
-    let kl_mean = constrained(&kl.mean);
-    let kl_cov = constrained(&kl.cov);
+    let DecoupledKl {
+        mean: kl_mean,
+        cov: kl_cov,
+    } = trust_region_kl(online, &target, region.constraint, states);
     // Each multiplier against its KL: one per member (summed) or one per dimension.
     let against_alpha = |kl: &Tensor| match region.constraint {
         KlConstraint::Summed => kl.unsqueeze(-1),

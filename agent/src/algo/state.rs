@@ -19,7 +19,7 @@
 
 use super::adam::{Adam, AdamConfig};
 use super::batch::{BatchError, SnippetBatch};
-use super::dual::Duals;
+use super::dual::{AlphaPart, DualOptimizer, Duals};
 use super::mstep::KlConstraint;
 pub(crate) use super::networks::Critics;
 use super::networks::{Networks, build_networks};
@@ -86,6 +86,9 @@ pub struct Learner {
     pub(crate) members: Members,
     /// Each member's config (`cfg` is the first's).
     pub(crate) member_cfgs: Vec<LearnerConfig>,
+    /// `[P]`: the fraction of this step's policy step each member kept after the
+    /// trust region's projection (`mpo.max_kl_ratio`); `None` when none ran.
+    pub(crate) policy_step_kept: Option<Tensor>,
     /// Sampling `act` calls so far: the counter of the `LearnerActing` stream.
     acts: Cell<u64>,
     pub(crate) step: u64,
@@ -159,9 +162,14 @@ impl Learner {
             critic_vs,
             critics,
         } = nets;
-        let adam = AdamConfig::new(settings.learning_rate, settings.adam_eps);
-        let policy_opt = Adam::for_var_store(&policy_vs, adam);
-        let critic_opt = Adam::for_var_store(&critic_vs, adam);
+        let policy_opt = Adam::for_var_store(
+            &policy_vs,
+            AdamConfig::new(settings.policy_learning_rate, settings.adam_eps),
+        );
+        let critic_opt = Adam::for_var_store(
+            &critic_vs,
+            AdamConfig::new(settings.critic_learning_rate, settings.adam_eps),
+        );
         let conditioned = cfg
             .conditioning
             .as_ref()
@@ -169,25 +177,34 @@ impl Learner {
             .transpose()?;
         let grid_points = conditioned.as_ref().map_or(1, |c| c.grid.len());
         let temperatures = vec![settings.init_temperature; grid_points * bound.objectives.len()];
-        let alphas: Vec<Vec<f64>> = match dims.action {
+        let part = |init: f64, per_part: usize, min: f64| AlphaPart {
+            init: vec![init; per_part],
+            min,
+        };
+        let min = settings.min_alpha;
+        let alphas = match dims.action {
             ActionKind::Continuous { dim } => {
                 let per_part = match settings.kl_constraint {
                     KlConstraint::Summed => 1,
                     KlConstraint::PerDimension => dim as usize,
                 };
                 vec![
-                    vec![settings.init_alpha_mean; per_part],
-                    vec![settings.init_alpha_cov; per_part],
+                    part(settings.init_alpha_mean, per_part, min.mean),
+                    part(settings.init_alpha_cov, per_part, min.cov),
                 ]
             }
-            ActionKind::Discrete { .. } => vec![vec![settings.init_alpha_categorical]],
+            ActionKind::Discrete { .. } => {
+                vec![part(settings.init_alpha_categorical, 1, min.categorical)]
+            }
         };
-        let alpha_parts: Vec<&[f64]> = alphas.iter().map(Vec::as_slice).collect();
         let duals = Duals::with_members(
             &temperatures,
-            &alpha_parts,
-            settings.dual_learning_rate,
-            settings.temperature_parameterization,
+            &alphas,
+            DualOptimizer {
+                lr: settings.dual_learning_rate,
+                beta2: settings.dual_adam_beta2,
+                temperature_kind: settings.temperature_parameterization,
+            },
             device,
             members,
         );
@@ -236,6 +253,7 @@ impl Learner {
             noise,
             members,
             member_cfgs: cfgs,
+            policy_step_kept: None,
             acts: Cell::new(0),
             step: 0,
         })

@@ -38,6 +38,10 @@ pub struct LearnerStats {
     /// (compare with beta); per-dimension constraint: the mean over the D dimensions
     /// of each dimension's KL (also compared with beta; times D it is the summed KL).
     pub policy_kl: Vec<f32>,
+    /// The fraction of its M-step the policy kept after the trust region's projection
+    /// (`mpo.max_kl_ratio`): 1 when the step stayed within (or no projection runs),
+    /// 0 when it was undone.
+    pub policy_step_kept: f32,
     /// Phase timings.
     pub timings: PhaseTimings,
 }

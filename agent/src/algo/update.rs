@@ -12,7 +12,7 @@ use super::mstep::{TrustRegion, categorical_mstep_with, gaussian_mstep_with};
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
 use crate::nets::PolicyOutput;
 use std::time::Instant;
-use tch::{Kind, Tensor};
+use tch::{Kind, Tensor, nn};
 
 /// What a step measured before its target update (tensors on the learner's device).
 #[derive(Debug)]
@@ -137,6 +137,10 @@ impl Learner {
         let p = self.members.count();
         let alpha = self.duals.alpha();
         let alpha = alpha.reshape([p, alpha.size()[alpha.dim() - 2], -1]);
+        let kept = match self.policy_step_kept.take() {
+            Some(kept) => kept.reshape([p, 1]),
+            None => Tensor::ones([p, 1], (Kind::Float, self.device)),
+        };
         let columns = [
             measured.critic_loss.reshape([p, -1]),
             self.duals.temperature().reshape([p, -1]),
@@ -144,6 +148,7 @@ impl Learner {
             measured.value_mean.reshape([p, -1]),
             alpha.mean_dim(-1, false, Kind::Float),
             measured.policy_kl.reshape([p, -1]),
+            kept,
         ];
         let widths: Vec<usize> = columns.iter().map(|c| c.size()[1] as usize).collect();
         let table = to_vec(&Tensor::cat(&columns, 1));
@@ -172,21 +177,78 @@ impl Learner {
                     q_mean: next(),
                     alpha: next(),
                     policy_kl: next(),
+                    policy_step_kept: next().first().copied().unwrap_or(1.0),
                     timings,
                 }
             })
             .collect())
     }
 
-    /// Counts the step and copies the target networks when due (C.1).
+    /// Counts the step and updates the target networks when due (C.1): a copy, or
+    /// with `target_update_rate` < 1 a step of that size towards the online networks.
     pub(crate) fn advance_targets(&mut self) -> Result<(), LearnerError> {
         self.step += 1;
-        if self.step.is_multiple_of(self.settings.target_update_period) {
-            self.target_policy_vs.copy(&self.policy_vs)?;
-            if let Critics::Q { target_vs, .. } = &mut self.critics {
-                target_vs.copy(&self.critic_vs)?;
-            }
+        if !self.step.is_multiple_of(self.settings.target_update_period) {
+            return Ok(());
+        }
+        let rate = self.settings.target_update_rate;
+        move_towards(&mut self.target_policy_vs, &self.policy_vs, rate)?;
+        if let Critics::Q { target_vs, .. } = &mut self.critics {
+            move_towards(target_vs, &self.critic_vs, rate)?;
         }
         Ok(())
+    }
+}
+
+/// `target <- target + rate (online - target)` for every variable (a copy at rate 1,
+/// bit for bit, as the paper's periodic update).
+fn move_towards(
+    target: &mut nn::VarStore,
+    online: &nn::VarStore,
+    rate: f64,
+) -> Result<(), LearnerError> {
+    if rate >= 1.0 {
+        return Ok(target.copy(online)?);
+    }
+    let online = online.variables();
+    tch::no_grad(|| {
+        for (name, mut t) in target.variables() {
+            let source = online.get(&name).ok_or_else(|| {
+                tch::TchError::Torch(format!("target variable {name} has no online twin"))
+            })?;
+            let _ = t.lerp_(source, rate);
+        }
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    fn store(value: f64) -> nn::VarStore {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let _ = vs.root().var("w", &[3], nn::Init::Const(value));
+        vs
+    }
+
+    fn value(vs: &nn::VarStore) -> f64 {
+        vs.variables()["w"].mean(Kind::Float).double_value(&[])
+    }
+
+    #[test]
+    fn targets_move_by_the_rate_and_a_rate_of_one_copies() {
+        let online = store(1.0);
+        let mut target = store(0.0);
+        move_towards(&mut target, &online, 0.25).unwrap();
+        assert!((value(&target) - 0.25).abs() < 1e-7);
+        // Polyak averaging: after n steps the gap is (1 - rate)^n of the first.
+        for _ in 0..9 {
+            move_towards(&mut target, &online, 0.25).unwrap();
+        }
+        assert!((value(&target) - (1.0 - 0.75f64.powi(10))).abs() < 1e-6);
+        move_towards(&mut target, &online, 1.0).unwrap();
+        assert_eq!(value(&target), 1.0);
     }
 }

@@ -18,7 +18,7 @@ pub use error::ConfigError;
 use error::{check, finite_pos};
 pub use mpo::MpoConfig;
 pub use network::{Architecture, NetworkConfig};
-pub use shared::{KlConstraint, SharedSettings, TemperatureParameterization};
+pub use shared::{KlConstraint, MinAlpha, SharedSettings, TemperatureParameterization};
 pub use vmpo::VmpoConfig;
 
 use serde::{Deserialize, Serialize};

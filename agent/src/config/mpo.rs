@@ -65,6 +65,47 @@ pub struct MpoConfig {
     /// Global-norm clip of policy and critic gradients (duals are never clipped).
     /// Not in the paper; Acme TF clips at 40. `None` disables clipping.
     pub grad_clip_norm: Option<f64>,
+    /// Adam learning rate of the policy alone, when it should differ from
+    /// `learning_rate` (Table 2 has one rate for policy and critics; Acme sets them
+    /// apart). `None` (default): `learning_rate`.
+    pub policy_learning_rate: Option<f64>,
+    /// Adam learning rate of the critics alone; `None` (default): `learning_rate`.
+    pub critic_learning_rate: Option<f64>,
+    /// How far the target networks move towards the online ones at each target
+    /// update, in (0, 1]: 1 (default) copies them, as C.1 and Algorithm 3 line 32 do;
+    /// a small rate with `target_update_period = 1` is Polyak averaging
+    /// (`target <- target + rate (online - target)` every learner step; Acme's JAX
+    /// MPO offers both). Not in the paper.
+    pub target_update_rate: f64,
+    /// Lower bound of alpha_mu: after each dual step alpha_mu is projected onto
+    /// [bound, inf). The paper's multiplier only has to stay positive (C.3); 0
+    /// (default) keeps the parameter floor every dual has (alpha >= ~1.5e-8). A bound
+    /// keeps alpha from decaying towards 0 while the policy's KL stays under beta_mu;
+    /// on its own it did not stop the KL spikes measured on pendulum
+    /// (docs/stability.md), `max_kl_ratio` does.
+    pub min_alpha_mean: f64,
+    /// Lower bound of alpha_Sigma, as `min_alpha_mean`; 0 (default): none.
+    pub min_alpha_cov: f64,
+    /// Lower bound of the categorical policy's alpha, as `min_alpha_mean`; 0
+    /// (default): none.
+    pub min_alpha_categorical: f64,
+    /// Second-moment decay of the duals' Adam (eta_k and alpha). Not in the paper;
+    /// 0.999 (default) is Adam's and Acme's. Adam divides each step by the root of
+    /// this average of squared gradients, so after one spike of KL far over beta
+    /// (a gradient hundreds of times the usual) alpha's steps stay tiny for about
+    /// 1 / (1 - beta2) steps: with 0.999 alpha stays high, and the policy frozen,
+    /// for thousands of learner steps. 0.9 forgets a spike within a few hundred.
+    pub dual_adam_beta2: f64,
+    /// Projection of the policy onto its trust region: after each M-step, a policy
+    /// whose KL from the target policy exceeds `max_kl_ratio` times beta (either
+    /// part of the Gaussian KL, or the categorical KL) is moved back towards the
+    /// target policy, its displacement halved until the KL is within, and put at the
+    /// target after five halvings (`algo/projection.rs`). The paper keeps
+    /// the KL under beta by Lagrangian relaxation alone (C.3), which holds it on
+    /// average but lets one target period of steps move the policy by hundreds of
+    /// times beta after alpha has decayed (docs/stability.md). `None` (default): the
+    /// paper's relaxation only.
+    pub max_kl_ratio: Option<f64>,
 }
 
 impl Default for MpoConfig {
@@ -89,6 +130,14 @@ impl Default for MpoConfig {
             batch_size: 512,
             replay_capacity: 1_000_000,
             grad_clip_norm: None,
+            policy_learning_rate: None,
+            critic_learning_rate: None,
+            target_update_rate: 1.0,
+            min_alpha_mean: 0.0,
+            min_alpha_cov: 0.0,
+            min_alpha_categorical: 0.0,
+            dual_adam_beta2: 0.999,
+            max_kl_ratio: None,
         }
     }
 }
@@ -140,6 +189,37 @@ impl MpoConfig {
         if let Some(c) = m.grad_clip_norm {
             check(finite_pos(c), "mpo.grad_clip_norm", "> 0 when set", c)?;
         }
+        for (field, rate) in [
+            ("mpo.policy_learning_rate", m.policy_learning_rate),
+            ("mpo.critic_learning_rate", m.critic_learning_rate),
+        ] {
+            if let Some(r) = rate {
+                check(finite_pos(r), field, "> 0 when set", r)?;
+            }
+        }
+        check(
+            m.target_update_rate > 0.0 && m.target_update_rate <= 1.0,
+            "mpo.target_update_rate",
+            "in (0, 1]",
+            m.target_update_rate,
+        )?;
+        non_negative("mpo.min_alpha_mean", m.min_alpha_mean)?;
+        non_negative("mpo.min_alpha_cov", m.min_alpha_cov)?;
+        non_negative("mpo.min_alpha_categorical", m.min_alpha_categorical)?;
+        if let Some(r) = m.max_kl_ratio {
+            check(
+                r.is_finite() && r >= 1.0,
+                "mpo.max_kl_ratio",
+                ">= 1 when set",
+                r,
+            )?;
+        }
+        check(
+            m.dual_adam_beta2 > 0.0 && m.dual_adam_beta2 < 1.0,
+            "mpo.dual_adam_beta2",
+            "in (0, 1)",
+            m.dual_adam_beta2,
+        )?;
         Ok(())
     }
 }

@@ -41,8 +41,10 @@ pub enum TemperatureParameterization {
 /// machinery (optimizers, duals, trust region, targets, batching) has one source.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SharedSettings {
-    /// Adam learning rate of policy and critics.
-    pub learning_rate: f64,
+    /// Adam learning rate of the policy.
+    pub policy_learning_rate: f64,
+    /// Adam learning rate of the critics.
+    pub critic_learning_rate: f64,
     /// Adam epsilon of policy and critics.
     pub adam_eps: f64,
     /// Adam learning rate of the duals.
@@ -67,8 +69,18 @@ pub struct SharedSettings {
     pub sequence_length: usize,
     /// gamma.
     pub discount: f64,
-    /// Learner steps between target-network copies.
+    /// Learner steps between target-network updates.
     pub target_update_period: u64,
+    /// How far each target update moves the targets towards the online networks (1:
+    /// a copy).
+    pub target_update_rate: f64,
+    /// Lower bounds of the trust-region multipliers: (alpha_mu, alpha_Sigma) and the
+    /// categorical alpha.
+    pub min_alpha: MinAlpha,
+    /// Second-moment decay of the duals' Adam.
+    pub dual_adam_beta2: f64,
+    /// The trust region's projection: KL at most this times beta after each step.
+    pub max_kl_ratio: Option<f64>,
     /// Gradient clip of policy and critics.
     pub grad_clip_norm: Option<f64>,
     /// Summed or per-dimension Gaussian trust region.
@@ -77,13 +89,25 @@ pub struct SharedSettings {
     pub temperature_parameterization: TemperatureParameterization,
 }
 
+/// Lower bounds of the trust-region multipliers (0: only the parameter floor).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MinAlpha {
+    /// alpha_mu.
+    pub mean: f64,
+    /// alpha_Sigma.
+    pub cov: f64,
+    /// The categorical policy's alpha.
+    pub categorical: f64,
+}
+
 impl LearnerConfig {
     /// The shared hyperparameters of this config's algorithm family.
     pub fn shared(&self) -> SharedSettings {
         if self.algorithm.on_policy() {
             let v = &self.vmpo;
             SharedSettings {
-                learning_rate: v.learning_rate,
+                policy_learning_rate: v.learning_rate,
+                critic_learning_rate: v.learning_rate,
                 adam_eps: v.adam_eps,
                 dual_learning_rate: v.dual_learning_rate,
                 init_temperature: v.init_temperature,
@@ -97,6 +121,12 @@ impl LearnerConfig {
                 sequence_length: v.unroll_length,
                 discount: v.discount,
                 target_update_period: v.target_update_period,
+                // V-MPO copies pi_old (Song et al. 2020); its duals keep Adam's
+                // defaults and only the parameter floor.
+                target_update_rate: 1.0,
+                min_alpha: MinAlpha::default(),
+                dual_adam_beta2: 0.999,
+                max_kl_ratio: None,
                 grad_clip_norm: v.grad_clip_norm,
                 kl_constraint: v.kl_constraint,
                 temperature_parameterization: v.temperature_parameterization,
@@ -104,7 +134,8 @@ impl LearnerConfig {
         } else {
             let m = &self.mpo;
             SharedSettings {
-                learning_rate: m.learning_rate,
+                policy_learning_rate: m.policy_learning_rate.unwrap_or(m.learning_rate),
+                critic_learning_rate: m.critic_learning_rate.unwrap_or(m.learning_rate),
                 adam_eps: m.adam_eps,
                 dual_learning_rate: m.dual_learning_rate,
                 init_temperature: m.init_temperature,
@@ -118,6 +149,14 @@ impl LearnerConfig {
                 sequence_length: m.retrace_length,
                 discount: m.discount,
                 target_update_period: m.target_update_period,
+                target_update_rate: m.target_update_rate,
+                min_alpha: MinAlpha {
+                    mean: m.min_alpha_mean,
+                    cov: m.min_alpha_cov,
+                    categorical: m.min_alpha_categorical,
+                },
+                dual_adam_beta2: m.dual_adam_beta2,
+                max_kl_ratio: m.max_kl_ratio,
                 grad_clip_norm: m.grad_clip_norm,
                 kl_constraint: m.kl_constraint,
                 temperature_parameterization: m.temperature_parameterization,
