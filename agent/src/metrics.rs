@@ -4,6 +4,8 @@
 //! - `episodes.csv`: one row per finished training episode, with the server's
 //!   undiscounted and discounted vector returns and the seconds since training began;
 //! - `learner.jsonl`: learner statistics every `log_period` learner steps;
+//! - `eval.csv`: the deterministic policy's evaluations every `run.eval_period` env
+//!   steps, when asked for (`train/evals.rs`);
 //! - `events.out.tfevents.*`: the same figures for TensorBoard, every chart by env
 //!   step (training returns, learner statistics, throughput, final evaluation returns);
 //! - `checkpoints/`, `replay/` (the checkpoints' replay segments), `summary.json`,
@@ -18,6 +20,9 @@ use serde::Serialize;
 
 use crate::env::EpisodeSummary;
 use crate::tensorboard::{EventWriter, Scalar};
+
+/// The periodic evaluations of a run (`run.eval_period`, written by `train`).
+pub const EVAL_CSV: &str = "eval.csv";
 
 /// Append-only writers of one run directory.
 #[derive(Debug)]

@@ -23,7 +23,7 @@ use crate::checkpoint::run::{
     LogLengths, NewSnippets, PaceOrigin, RUN_FORMAT_VERSION, ReplayState, RunProgress,
     discard_after, latest_checkpoint, load_replay, write_run_checkpoint,
 };
-use crate::metrics::RunFiles;
+use crate::metrics::{EVAL_CSV, RunFiles};
 use crate::replay::{Snippet, SnippetLayout, SnippetReplay};
 use crate::schedule::Schedule;
 
@@ -172,7 +172,7 @@ fn events_files(dir: &Path) -> Result<Vec<String>, CheckpointError> {
 /// after it is written again by the resumed one. TensorBoard files the checkpoint
 /// does not know were made after it, by a process that died before its first
 /// checkpoint, and go.
-fn truncate_logs(dir: &Path, logs: &LogLengths) -> Result<(), CheckpointError> {
+fn truncate_logs(dir: &Path, logs: &LogLengths, env_steps: u64) -> Result<(), CheckpointError> {
     let cut = |name: &str, len: u64| -> Result<(), CheckpointError> {
         let path = dir.join(name);
         if !path.exists() {
@@ -185,6 +185,7 @@ fn truncate_logs(dir: &Path, logs: &LogLengths) -> Result<(), CheckpointError> {
         file.set_len(len).map_err(io(&path))
     };
     cut("episodes.csv", logs.episodes_csv)?;
+    truncate_evaluations(dir, env_steps)?;
     cut("learner.jsonl", logs.learner_jsonl)?;
     for name in events_files(dir)? {
         match logs.events.get(&name) {
@@ -196,6 +197,30 @@ fn truncate_logs(dir: &Path, logs: &LogLengths) -> Result<(), CheckpointError> {
         }
     }
     Ok(())
+}
+
+/// Removes the rows of `eval.csv` after `env_steps`: the resumed run evaluates those
+/// points again. (Evaluations are written as they finish, beside the checkpoints, so
+/// the file's length at a checkpoint says nothing.)
+fn truncate_evaluations(dir: &Path, env_steps: u64) -> Result<(), CheckpointError> {
+    let path = dir.join(EVAL_CSV);
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(());
+    };
+    let kept: String = text
+        .lines()
+        .enumerate()
+        .filter(|(i, line)| {
+            *i == 0
+                || line
+                    .split(',')
+                    .next()
+                    .and_then(|v| v.parse::<u64>().ok())
+                    .is_some_and(|at| at <= env_steps)
+        })
+        .map(|(_, line)| format!("{line}\n"))
+        .collect();
+    std::fs::write(&path, kept).map_err(io(&path))
 }
 
 /// A run reopened at its latest checkpoint.
@@ -212,7 +237,7 @@ pub struct Reopened {
 pub fn open_checkpoint(run_dir: &Path, device: Device) -> Result<Reopened, CheckpointError> {
     let (ckpt, progress) = latest_checkpoint(run_dir)?;
     discard_after(run_dir, &ckpt)?;
-    truncate_logs(run_dir, &progress.logs)?;
+    truncate_logs(run_dir, &progress.logs, progress.env_steps)?;
     let learner = Learner::load_checkpoint(&ckpt, device)?;
     tracing::info!(checkpoint = %ckpt.display(), env_steps = progress.env_steps, "resuming");
     Ok(Reopened { learner, progress })
@@ -252,4 +277,29 @@ pub fn restore_schedule(
             message: e.to_string(),
         })?;
     Ok(progress.pace_origin)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn evaluations_after_the_checkpoint_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(EVAL_CSV);
+        std::fs::write(
+            &path,
+            "env_steps,learner_steps,return_a\n1000,10,-5\n2000,20,-4\n3000,30,-3\n",
+        )
+        .unwrap();
+        truncate_evaluations(dir.path(), 2000).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "env_steps,learner_steps,return_a\n1000,10,-5\n2000,20,-4\n"
+        );
+        // A run without evaluations has no file, and none is made.
+        let empty = tempfile::tempdir().unwrap();
+        truncate_evaluations(empty.path(), 0).unwrap();
+        assert!(!empty.path().join(EVAL_CSV).exists());
+    }
 }

@@ -69,6 +69,48 @@ pub struct FrontConfig {
     /// Optional ε-ratio plot.
     #[serde(default)]
     pub ratio_plot: Option<RatioPlot>,
+    /// Hypervolume reference point of the discounted evaluation returns, objective
+    /// name -> value (every objective), as MORL-Baselines measures fronts (e.g. -100
+    /// per objective with gamma 0.99); when given, the run's periodic evaluations log
+    /// that hypervolume too. Empty (default): not measured.
+    #[serde(default)]
+    pub discounted_reference_point: BTreeMap<String, f64>,
+}
+
+impl FrontConfig {
+    /// `reference_point` in objective order (an error names a missing objective).
+    pub fn reference(&self, objectives: &[String]) -> Result<Vec<f64>, ConfigError> {
+        in_order(&self.reference_point, "reference_point", objectives)
+    }
+
+    /// `discounted_reference_point` in objective order, when given.
+    pub fn discounted_reference(
+        &self,
+        objectives: &[String],
+    ) -> Result<Option<Vec<f64>>, ConfigError> {
+        if self.discounted_reference_point.is_empty() {
+            return Ok(None);
+        }
+        let field = "discounted_reference_point";
+        in_order(&self.discounted_reference_point, field, objectives).map(Some)
+    }
+}
+
+/// `values` in `objectives`' order.
+fn in_order(
+    values: &BTreeMap<String, f64>,
+    field: &str,
+    objectives: &[String],
+) -> Result<Vec<f64>, ConfigError> {
+    objectives
+        .iter()
+        .map(|n| {
+            values
+                .get(n)
+                .copied()
+                .ok_or_else(|| invalid(field, "a value per objective", n))
+        })
+        .collect()
 }
 
 /// One trained and evaluated setting.
@@ -144,15 +186,7 @@ impl FrontReport<'_> {
         mut points: Vec<FrontPoint>,
         wall_seconds: f64,
     ) -> Result<FrontSummary, FrontError> {
-        let reference: Vec<f64> = objectives
-            .iter()
-            .map(|n| {
-                self.reference_point
-                    .get(n)
-                    .copied()
-                    .ok_or_else(|| invalid("reference_point", "a value per objective", n))
-            })
-            .collect::<Result<_, _>>()?;
+        let reference = in_order(self.reference_point, "reference_point", &objectives)?;
         let returns: Vec<Vec<f64>> = points.iter().map(|p| p.eval_return.clone()).collect();
         for i in non_dominated(&returns) {
             points[i].on_front = true;

@@ -100,8 +100,17 @@ pub struct RunConfig {
     pub checkpoint_replay: bool,
     /// Learner steps between metric records.
     pub log_period: u64,
-    /// Episodes of the final evaluation (deterministic policy).
+    /// Episodes of the final evaluation (deterministic policy), and of each periodic one.
     pub eval_episodes: usize,
+    /// Env steps between evaluations of the deterministic policy while training, as
+    /// Stable-Baselines3's `EvalCallback` (`eval_freq`) does: each runs
+    /// `eval_episodes` episodes on a session of its own, seeded as the final
+    /// evaluation is, with the policy the actors hold when the env steps reach the
+    /// multiple, and writes `eval.csv`, TensorBoard scalars and `eval.png`; an
+    /// ε-conditioned run evaluates every grid point and logs its front's hypervolume.
+    /// Evaluations change no training step (the run's episodes and learner logs stay
+    /// the same). 0 (default): none.
+    pub eval_period: u64,
     /// Directory under which `runs/<task>__<algo>__<seed>__<time>/` is made.
     pub runs_dir: PathBuf,
     /// Returns that count as solved, by objective name (`{ task = -200.0 }`): the run
@@ -124,6 +133,7 @@ impl Default for RunConfig {
             checkpoint_replay: true,
             log_period: 50,
             eval_episodes: 10,
+            eval_period: 0,
             runs_dir: PathBuf::from("runs"),
             solve_threshold: BTreeMap::new(),
             stop_on_solve: false,

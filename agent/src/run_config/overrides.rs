@@ -40,6 +40,7 @@ impl TrainConfig {
         self.run.checkpoint_period = from.run.checkpoint_period;
         self.run.checkpoint_replay = from.run.checkpoint_replay;
         self.run.eval_episodes = from.run.eval_episodes;
+        self.run.eval_period = from.run.eval_period;
         self.env.servers = from.env.servers.clone();
         self.env.connection = from.env.connection.clone();
         self.learner.device = from.learner.device;
@@ -55,6 +56,7 @@ pub const RESUMABLE_FIELDS: &[&str] = &[
     "run.checkpoint_period",
     "run.checkpoint_replay",
     "run.eval_episodes",
+    "run.eval_period",
     "env.servers",
     "env.connection",
     "learner.device",

@@ -113,6 +113,31 @@ struct Fill {
     inserted: u64,
 }
 
+/// A periodic evaluation that fell due (`run.eval_period`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EvalPoint {
+    /// The multiple of the period the run's env steps reached.
+    pub env_steps: u64,
+    /// Learner steps taken at that moment: the published policy is theirs.
+    pub learner_steps: u64,
+}
+
+/// Who hears of evaluations as they fall due.
+struct EvalTap {
+    period: u64,
+    next: u64,
+    notify: Box<dyn Fn(EvalPoint) + Send + Sync>,
+}
+
+impl std::fmt::Debug for EvalTap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EvalTap")
+            .field("period", &self.period)
+            .field("next", &self.next)
+            .finish_non_exhaustive()
+    }
+}
+
 /// Shared state of one run.
 #[derive(Debug)]
 pub struct Schedule {
@@ -127,6 +152,8 @@ pub struct Schedule {
     /// When this invocation's actor-learner loop was set up (wall-clock stamps of
     /// episodes and of "solved").
     started: Instant,
+    /// Periodic evaluations, when asked for.
+    eval_tap: Mutex<Option<EvalTap>>,
 }
 
 impl Schedule {
@@ -141,7 +168,31 @@ impl Schedule {
             replay: Mutex::new(replay),
             pace,
             started: Instant::now(),
+            eval_tap: Mutex::new(None),
         }
+    }
+
+    /// Calls `notify` each time the env steps reach the next multiple of `period`
+    /// (after the counts already made), inside the commit that reaches it: the
+    /// actors have then waited for every learner step allowed so far and the
+    /// learner cannot step until the commit ends, so the policy published at that
+    /// moment is the one after `EvalPoint::learner_steps`, on every invocation.
+    pub fn set_eval_tap(&self, period: u64, notify: impl Fn(EvalPoint) + Send + Sync + 'static) {
+        let period = period.max(1);
+        let next = (self.lock().env_steps / period + 1) * period;
+        *self.eval_tap.lock().unwrap_or_else(|e| e.into_inner()) = Some(EvalTap {
+            period,
+            next,
+            notify: Box::new(notify),
+        });
+    }
+
+    /// Stops the evaluation tap (its `notify` is dropped).
+    pub fn clear_eval_tap(&self) {
+        self.eval_tap
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
     }
 
     /// Seconds since the schedule was made: the start of this `train` invocation's
@@ -261,6 +312,16 @@ impl Schedule {
                 c.recent_returns.pop_front();
             }
             c.recent_returns.push_back(r);
+        }
+        let mut tap = self.eval_tap.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(tap) = tap.as_mut() {
+            while c.env_steps >= tap.next {
+                (tap.notify)(EvalPoint {
+                    env_steps: tap.next,
+                    learner_steps: c.learner_steps,
+                });
+                tap.next += tap.period;
+            }
         }
     }
 

@@ -46,6 +46,7 @@ use videos::{PeriodicContext, record_periodically};
 
 mod actors;
 mod curves;
+mod evals;
 mod finish;
 mod front;
 mod progress;
@@ -53,6 +54,7 @@ mod setup;
 mod videos;
 
 use actors::{ActorPlan, spawn_actors};
+use evals::{EvalPlan, finish_evaluations, start_evaluations};
 use finish::finish_member;
 use progress::{progress_bar, spawn_ticker};
 use setup::{
@@ -228,6 +230,7 @@ pub async fn train_population(
     let layout = snippet_layout(&cfg, &dims, objectives.len());
     let mut runs = Vec::with_capacity(cfgs.len());
     let mut loops = Vec::with_capacity(cfgs.len());
+    let mut evaluations = Vec::with_capacity(cfgs.len());
     for (p, (member_cfg, opened)) in cfgs.iter().zip(opened).enumerate() {
         let OpenedRun {
             run_dir,
@@ -251,6 +254,15 @@ pub async fn train_population(
             .map_or(0, |r| r.inserted);
         let (params_tx, params_rx) = watch::channel(Arc::new(learner.member_policy_snapshot(p)));
         let latest = Arc::new(Mutex::new(None));
+        // Before any actor commits, so that no evaluation point is missed.
+        let plan = EvalPlan {
+            cfg: member_cfg.clone(),
+            dims: dims.clone(),
+            grid: grid.clone(),
+            servers: servers.clone(),
+            files: files.clone(),
+        };
+        evaluations.push(start_evaluations(plan, &schedule, params_rx.clone()));
         loops.push(MemberLoop {
             schedule: schedule.clone(),
             params: params_tx,
@@ -371,6 +383,10 @@ pub async fn train_population(
     }
     let LearnerDone { learner, policies } = done?;
     drop(learner);
+    for (run, task) in runs.iter().zip(evaluations) {
+        let interrupted = run.schedule.counters().interrupted.is_some();
+        finish_evaluations(task, &run.schedule, interrupted, &run.run_dir).await?;
+    }
 
     let mut summaries = Vec::with_capacity(runs.len());
     for (run, snapshot) in runs.iter().zip(policies) {
