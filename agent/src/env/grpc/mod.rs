@@ -3,10 +3,13 @@
 //! Every proto message is converted to the plain types of [`crate::spec`] and
 //! [`crate::env`] here, field by field, so a protocol change breaks the build in
 //! one place. Only UNAVAILABLE is retried (with exponential backoff); every other
-//! status becomes a typed [`EnvError::Status`] carrying the server's message.
+//! status becomes a typed [`EnvError::Status`] carrying the server's message. Every
+//! call has a deadline ([`DeadlineConfig`]; a Step's and a Reset's follow the
+//! session's measured pace), and a call that misses it is [`EnvError::Deadline`].
 //! Servers on other hosts are reached over TLS with a bearer token ([`Credentials`]).
 
 use std::future::Future;
+use std::time::{Duration, Instant};
 
 use mo_env_proto::v1 as pb;
 use pb::env_service_client::EnvServiceClient;
@@ -28,6 +31,7 @@ use convert::{
 };
 
 use super::connection::Credentials;
+use super::deadline::{CallTimes, DeadlineConfig};
 use super::discovery::ServerAddress;
 use super::{Env, HostTensor, MakeOptions, ResetResult, StepResult};
 use crate::error::{EnvError, StatusKind};
@@ -42,6 +46,7 @@ pub struct EnvClient {
     client: Stub,
     address: String,
     retry: RetryPolicy,
+    deadlines: DeadlineConfig,
 }
 
 impl EnvClient {
@@ -67,15 +72,25 @@ impl EnvClient {
         credentials: &Credentials,
         retry: RetryPolicy,
     ) -> Result<Self, EnvError> {
-        Self::connect_to(&ServerAddress::plain(address), credentials, retry).await
+        let deadlines = DeadlineConfig::default();
+        Self::connect_to(
+            &ServerAddress::plain(address),
+            credentials,
+            retry,
+            deadlines,
+        )
+        .await
     }
 
     /// Connect to a server found by discovery: `server.dial` is dialled and, over TLS,
-    /// the certificate must carry `server.tls_name` when set.
+    /// the certificate must carry `server.tls_name` when set. Calls then wait as
+    /// `deadlines` say; a connection not set up within their floor is given up (not
+    /// retried: the caller may have other servers).
     pub async fn connect_to(
         server: &ServerAddress,
         credentials: &Credentials,
         retry: RetryPolicy,
+        deadlines: DeadlineConfig,
     ) -> Result<Self, EnvError> {
         let address = server.to_string();
         let connect_error = |reason: String| EnvError::Connect {
@@ -87,7 +102,11 @@ impl EnvClient {
         let bearer = Bearer::new(credentials.token.as_deref()).map_err(connect_error)?;
         let mut attempt = 0;
         let channel = loop {
-            match endpoint.connect().await {
+            let connected = tokio::time::timeout(deadlines.floor(), endpoint.connect()).await;
+            let Ok(connected) = connected else {
+                return Err(missed(&address, "connect", deadlines.floor()));
+            };
+            match connected {
                 Ok(channel) => break channel,
                 Err(e) if channel::is_permanent(&e) => {
                     return Err(connect_error(format!(
@@ -116,6 +135,7 @@ impl EnvClient {
             client,
             address,
             retry,
+            deadlines,
         })
     }
 
@@ -132,10 +152,26 @@ impl EnvClient {
         }
     }
 
-    /// Run one unary call, retrying only UNAVAILABLE with backoff.
+    /// The same channel, its calls waiting as `deadlines` say.
+    pub fn with_deadlines(&self, deadlines: DeadlineConfig) -> Self {
+        Self {
+            deadlines,
+            ..self.clone()
+        }
+    }
+
+    /// How long this client's calls wait.
+    pub fn deadlines(&self) -> &DeadlineConfig {
+        &self.deadlines
+    }
+
+    /// Run one unary call, each attempt bounded by `deadline`, retrying only
+    /// UNAVAILABLE with backoff (a missed deadline is not retried here: the actor's
+    /// session restart decides where to go next).
     async fn call<Req, Resp, F, Fut>(
         &self,
         name: &'static str,
+        deadline: Duration,
         request: Req,
         mut f: F,
     ) -> Result<Resp, EnvError>
@@ -146,7 +182,11 @@ impl EnvClient {
     {
         let mut attempt = 0;
         loop {
-            match f(self.client.clone(), request.clone()).await {
+            let answer = tokio::time::timeout(deadline, f(self.client.clone(), request.clone()));
+            let Ok(answer) = answer.await else {
+                return Err(missed(&self.address, name, deadline));
+            };
+            match answer {
                 Ok(response) => return Ok(response.into_inner()),
                 Err(status) if is_unavailable(&status) && attempt + 1 < self.retry.max_attempts => {
                     tracing::warn!(
@@ -168,6 +208,7 @@ impl EnvClient {
         let r = self
             .call(
                 "GetVersion",
+                self.deadlines.floor(),
                 pb::GetVersionRequest {},
                 |mut c, r| async move { c.get_version(r).await },
             )
@@ -183,9 +224,12 @@ impl EnvClient {
     /// Every env the server ships, with its objectives.
     pub async fn list_envs(&self) -> Result<Vec<EnvInfo>, EnvError> {
         let r = self
-            .call("ListEnvs", pb::ListEnvsRequest {}, |mut c, r| async move {
-                c.list_envs(r).await
-            })
+            .call(
+                "ListEnvs",
+                self.deadlines.floor(),
+                pb::ListEnvsRequest {},
+                |mut c, r| async move { c.list_envs(r).await },
+            )
             .await?;
         Ok(r.envs
             .into_iter()
@@ -221,9 +265,16 @@ impl EnvClient {
                 got: options.num_workers.to_string(),
             })?,
         };
+        let started = Instant::now();
         let r = self
-            .call("Make", request, |mut c, r| async move { c.make(r).await })
+            .call(
+                "Make",
+                self.deadlines.ceiling(),
+                request,
+                |mut c, r| async move { c.make(r).await },
+            )
             .await?;
+        let times = CallTimes::after_make(started.elapsed());
         let spec = spec_from_proto(r.spec.ok_or_else(|| missing("MakeResponse.spec"))?)?;
         Ok(RemoteEnv {
             client: self.clone(),
@@ -231,6 +282,7 @@ impl EnvClient {
             spec,
             lease_seconds: r.lease_seconds,
             stream: StreamState::Unary,
+            times,
         })
     }
 }
@@ -243,6 +295,8 @@ pub struct RemoteEnv {
     spec: EnvSpec,
     lease_seconds: f64,
     stream: StreamState,
+    /// What this session's calls took, which its Step and Reset deadlines follow.
+    times: CallTimes,
 }
 
 /// How steps travel: unary calls, or one bidirectional stream.
@@ -272,6 +326,11 @@ impl RemoteEnv {
     /// Idle time after which the server closes the session.
     pub fn lease_seconds(&self) -> f64 {
         self.lease_seconds
+    }
+
+    /// The deadline the next Step waits for (the session's pace, `env.deadlines`).
+    pub fn step_deadline(&self) -> Duration {
+        self.times.step_deadline(&self.client.deadlines)
     }
 
     /// Send subsequent steps over one bidirectional stream instead of unary calls.
@@ -346,10 +405,15 @@ impl Env for RemoteEnv {
             env_indices: env_indices.iter().map(|&i| i as i32).collect(),
             seeds: seeds.to_vec(),
         };
+        let deadline = self.times.reset_deadline(&self.client.deadlines);
+        let started = Instant::now();
         let r = self
             .client
-            .call("Reset", request, |mut c, r| async move { c.reset(r).await })
+            .call("Reset", deadline, request, |mut c, r| async move {
+                c.reset(r).await
+            })
             .await?;
+        self.times.reset(started.elapsed());
         Ok(ResetResult {
             observation: observation_from_proto(r.observation)?,
             info: named_from_proto(r.info)?,
@@ -361,13 +425,26 @@ impl Env for RemoteEnv {
             session_id: self.session_id.clone(),
             action: Some(tensor_to_proto(action)),
         };
+        let deadline = self.step_deadline();
+        let started = Instant::now();
         let r = if !matches!(self.stream, StreamState::Unary) {
-            self.step_streamed(request).await?
+            match tokio::time::timeout(deadline, self.step_streamed(request)).await {
+                Ok(response) => response?,
+                Err(_) => {
+                    // The stream is given up (dropping it cancels the call, and the
+                    // server closes its sessions when the cancel reaches it).
+                    self.stream = StreamState::Idle;
+                    return Err(missed(&self.client.address, "StepStream", deadline));
+                }
+            }
         } else {
             self.client
-                .call("Step", request, |mut c, r| async move { c.step(r).await })
+                .call("Step", deadline, request, |mut c, r| async move {
+                    c.step(r).await
+                })
                 .await?
         };
+        self.times.stepped(started.elapsed());
         step_from_proto(r, self.spec.num_envs, self.spec.num_objectives())
     }
 
@@ -377,11 +454,15 @@ impl Env for RemoteEnv {
         let request = pb::CloseRequest {
             session_id: self.session_id.clone(),
         };
+        let deadline = self.client.deadlines.floor();
         let closed = self
             .client
-            .call("CloseSession", request.clone(), |mut c, r| async move {
-                c.close_session(r).await
-            })
+            .call(
+                "CloseSession",
+                deadline,
+                request.clone(),
+                |mut c, r| async move { c.close_session(r).await },
+            )
             .await;
         match closed {
             // A server from before CloseSession knows the call only by its old name.
@@ -391,7 +472,9 @@ impl Env for RemoteEnv {
             }) => {
                 #[allow(deprecated, reason = "the fallback for servers without CloseSession")]
                 self.client
-                    .call("Close", request, |mut c, r| async move { c.close(r).await })
+                    .call("Close", deadline, request, |mut c, r| async move {
+                        c.close(r).await
+                    })
                     .await?;
             }
             closed => {
@@ -399,5 +482,21 @@ impl Env for RemoteEnv {
             }
         }
         Ok(())
+    }
+}
+
+/// The error of a call to `server` that got no answer within `waited`, logged where it
+/// happens with the server, the call and the time waited.
+fn missed(server: &str, call: &'static str, waited: Duration) -> EnvError {
+    tracing::warn!(
+        server,
+        call,
+        waited_s = waited.as_secs_f64(),
+        "env server gave no answer within the deadline"
+    );
+    EnvError::Deadline {
+        call,
+        server: server.to_string(),
+        waited,
     }
 }
