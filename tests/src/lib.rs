@@ -74,3 +74,6 @@ pub async fn run_sweep(
         .await
         .unwrap()
 }
+pub mod chaos;
+pub mod faults;
+pub mod proxy;
