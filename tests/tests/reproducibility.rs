@@ -18,15 +18,6 @@ use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train, train_population};
 use integration_tests::smoke_config;
 
-/// This binary's tests run one at a time: side by side in one process, the MO-V-MPO
-/// population test's env_server was now and then gone (connection refused) before its
-/// second population run or its runs alone (4 of 9 tries of the whole binary), which
-/// it never was alone (9 of 9). Not yet explained; issue 22's closing note has it.
-async fn one_at_a_time() -> tokio::sync::MutexGuard<'static, ()> {
-    static ONE: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
-    ONE.lock().await
-}
-
 /// What a run wrote that must repeat: `episodes.csv` and `learner.jsonl` without
 /// their wall-clock fields.
 #[derive(Debug, PartialEq)]
@@ -98,7 +89,6 @@ fn with_seed(mut cfg: TrainConfig, seed: u64) -> TrainConfig {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_same_config_and_seed_give_the_same_learning_curve() {
-    let _turn = one_at_a_time().await;
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
     let mut cfg = smoke_config(runs.path());
@@ -119,7 +109,6 @@ async fn the_same_config_and_seed_give_the_same_learning_curve() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_run_beside_other_runs_matches_the_same_run_alone() {
-    let _turn = one_at_a_time().await;
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
     let mut dst = smoke_config(runs.path());
@@ -195,7 +184,6 @@ async fn an_on_policy_population_member_matches_the_same_run_alone() {
 /// run alone (episodes until `first_step` transitions, learner statistics within
 /// 1e-5 relative over the first 50 learner steps).
 async fn member_matches_alone(base: TrainConfig, settings: &[(u64, f64)], first_step: u64) {
-    let _turn = one_at_a_time().await;
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let mut base = base;
     base.run.log_period = 1;
