@@ -12,7 +12,7 @@ use agent::env::Env;
 use agent::env::MakeOptions;
 use agent::env::deadline::DeadlineConfig;
 use agent::env::grpc::EnvClient;
-use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::env::server_process::LocalServer;
 use agent::error::StatusKind;
 use agent::run_config::TrainConfig;
 use agent::train::TrainSummary;
@@ -52,15 +52,9 @@ impl FaultBed {
 
     /// [`Self::start`] with more server flags.
     pub async fn start_with(extra: &[&str]) -> FaultBed {
-        let mut extra_args = vec!["--max-sessions".to_string(), MAX_SESSIONS.to_string()];
-        extra_args.extend(extra.iter().map(|s| s.to_string()));
-        let options = ServerOptions {
-            extra_args,
-            ..ServerOptions::default()
-        };
-        let server = LocalServer::start(&options)
-            .await
-            .expect("env_server starts");
+        let mut args = vec!["--max-sessions".to_string(), MAX_SESSIONS.to_string()];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let server = crate::start_server(&args).await;
         let proxy = FaultProxy::start(server.address()).await;
         FaultBed { server, proxy }
     }
@@ -147,14 +141,19 @@ pub async fn run_with_faults<T>(
     for (i, step) in plan.iter().enumerate() {
         let wait = async {
             if i == 0 {
-                wait_for_answers(proxy, started, PROGRESS_CHUNKS, None).await;
+                wait_for_chunks(proxy, Direction::Down, (started, PROGRESS_CHUNKS), None).await;
             }
             proxy.set(step.fault);
             tokio::time::sleep(step.hold).await;
             proxy.clear();
             let cleared = Instant::now();
-            let recovered =
-                wait_for_answers(proxy, cleared, PROGRESS_CHUNKS, Some(recover_within)).await;
+            let recovered = wait_for_chunks(
+                proxy,
+                Direction::Down,
+                (cleared, PROGRESS_CHUNKS),
+                Some(recover_within),
+            )
+            .await;
             Injected {
                 fault: step.fault,
                 recovered_s: (recovered - cleared).as_secs_f64(),
@@ -172,32 +171,32 @@ pub async fn run_with_faults<T>(
     (run.await, injected)
 }
 
-/// When the `n`-th answer (a server-to-agent chunk) after `after` went through; fails
-/// after `within` when given (no progress).
-async fn wait_for_answers(
+/// When the `n`-th chunk going `way` after `after` went through `proxy`; fails after
+/// `within` when given (no progress).
+pub async fn wait_for_chunks(
     proxy: &FaultProxy,
-    after: Instant,
-    n: usize,
+    way: Direction,
+    (after, n): (Instant, usize),
     within: Option<Duration>,
 ) -> Instant {
     loop {
-        let answers: Vec<Instant> = proxy
+        let at: Vec<Instant> = proxy
             .traffic()
             .iter()
-            .filter(|c| c.direction == Direction::Down && c.at > after)
+            .filter(|c| c.direction == way && c.at > after)
             .map(|c| c.at)
             .collect();
-        if answers.len() >= n {
-            return answers[n - 1];
+        if at.len() >= n {
+            return at[n - 1];
         }
         if let Some(within) = within {
             assert!(
                 after.elapsed() < within,
-                "{} answers through the proxy in the {within:?} after a fault cleared",
-                answers.len()
+                "{} chunks {way:?} through the proxy in the {within:?} after a fault cleared",
+                at.len()
             );
         }
-        tokio::time::sleep(Duration::from_millis(20)).await;
+        tokio::time::sleep(Duration::from_millis(10)).await;
     }
 }
 

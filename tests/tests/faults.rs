@@ -15,10 +15,10 @@ use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, TrainSummary, train, train_population};
 use integration_tests::chaos::{Chaos, SoakReport};
 use integration_tests::faults::{
-    FaultBed, Injection, assert_complete, run_with_faults, test_deadlines,
+    FaultBed, Injection, assert_complete, run_with_faults, test_deadlines, wait_for_chunks,
 };
-use integration_tests::proxy::{Direction, Fault, FaultProxy};
-use integration_tests::smoke_config;
+use integration_tests::proxy::{Direction, Fault};
+use integration_tests::{short_pendulum, smoke_config};
 
 /// Every fault once. The blackhole outlasts the test deadlines' ceiling (2 s), so a
 /// step misses its deadline and the session is made again, however slow the steps
@@ -145,10 +145,10 @@ async fn blackholed_server_is_given_up(mut cfg: TrainConfig) {
     cfg.env.servers = vec![a.proxy.address(), b.proxy.address()];
     let deadline = cfg.env.deadlines.floor();
     let blackhole = async {
-        wait_for_traffic(&a.proxy, Instant::now(), 30).await;
+        wait_for_chunks(&a.proxy, Direction::Up, (Instant::now(), 30), None).await;
         a.proxy.set(Fault::Blackhole);
         let at = Instant::now();
-        let moved = wait_for_traffic(&b.proxy, at, 1).await;
+        let moved = wait_for_chunks(&b.proxy, Direction::Up, (at, 1), None).await;
         moved - at
     };
     let run = train(cfg.clone(), &cfg.env.servers, TrainOptions::default());
@@ -170,22 +170,6 @@ async fn blackholed_server_is_given_up(mut cfg: TrainConfig) {
     b.assert_no_session_left(Duration::from_secs(10)).await;
 }
 
-/// When the `n`-th agent-to-server chunk after `after` went through `proxy`.
-async fn wait_for_traffic(proxy: &FaultProxy, after: Instant, n: usize) -> Instant {
-    loop {
-        let sent: Vec<Instant> = proxy
-            .traffic()
-            .iter()
-            .filter(|c| c.direction == Direction::Up && c.at > after)
-            .map(|c| c.at)
-            .collect();
-        if sent.len() >= n {
-            return sent[n - 1];
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_blackholed_dst_server_is_given_up_within_the_deadline() {
     let runs = tempfile::tempdir().unwrap();
@@ -197,17 +181,7 @@ async fn a_blackholed_dst_server_is_given_up_within_the_deadline() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_blackholed_pendulum_server_is_given_up_within_the_deadline() {
     let runs = tempfile::tempdir().unwrap();
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum.toml");
-    let mut cfg = TrainConfig::load_with(
-        &path,
-        &[
-            "run.total_env_steps=1600".into(),
-            "run.min_replay_transitions=400".into(),
-            "run.eval_episodes=1".into(),
-        ],
-    )
-    .unwrap();
-    cfg.run.runs_dir = runs.path().to_path_buf();
+    let cfg = short_pendulum(runs.path());
     blackholed_server_is_given_up(cfg).await;
 }
 

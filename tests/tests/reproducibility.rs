@@ -16,7 +16,7 @@ use std::path::Path;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train, train_population};
-use integration_tests::smoke_config;
+use integration_tests::{short_pendulum, smoke_config};
 
 /// What a run wrote that must repeat: `episodes.csv` and `learner.jsonl` without
 /// their wall-clock fields.
@@ -64,23 +64,6 @@ async fn run(cfg: TrainConfig, server: &LocalServer) -> Curve {
     curve(&s.run_dir)
 }
 
-/// A short Gaussian MO-MPO run on the pendulum preset (learner noise every step).
-fn pendulum_config(runs_dir: &Path) -> TrainConfig {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum.toml");
-    let mut cfg = TrainConfig::load_with(
-        &path,
-        &[
-            "run.total_env_steps=1600".into(),
-            "run.min_replay_transitions=400".into(),
-            "run.log_period=25".into(),
-            "run.eval_episodes=1".into(),
-        ],
-    )
-    .expect("pendulum preset loads");
-    cfg.run.runs_dir = runs_dir.to_path_buf();
-    cfg
-}
-
 fn with_seed(mut cfg: TrainConfig, seed: u64) -> TrainConfig {
     cfg.seed = seed;
     cfg.learner.seed = seed;
@@ -113,7 +96,10 @@ async fn a_run_beside_other_runs_matches_the_same_run_alone() {
     let runs = tempfile::tempdir().unwrap();
     let mut dst = smoke_config(runs.path());
     dst.run.total_env_steps = 2500;
-    for (name, cfg) in [("dst", dst), ("pendulum", pendulum_config(runs.path()))] {
+    // A short Gaussian MO-MPO run on the pendulum preset (learner noise every step).
+    let mut pendulum = short_pendulum(runs.path());
+    pendulum.run.log_period = 25;
+    for (name, cfg) in [("dst", dst), ("pendulum", pendulum)] {
         let alone = run(cfg.clone(), &server).await;
         assert!(alone.learner.len() >= 10, "{name}: too few learner rows");
         // The same run again, now while a run of another seed trains beside it, both

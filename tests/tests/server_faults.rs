@@ -13,10 +13,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use agent::env::grpc::EnvClient;
-use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::env::server_process::LocalServer;
 use agent::env::{Env, HostTensor, MakeOptions, StepResult};
 use integration_tests::faults::free_sessions;
 use integration_tests::proxy::{Direction, Fault, FaultProxy};
+use integration_tests::start_server;
 use tokio::task::JoinHandle;
 
 const FRONTS: [&str; 2] = ["native", "grpcio"];
@@ -29,20 +30,14 @@ const MAX_SESSIONS: usize = 6;
 const KEEPALIVE_S: &str = "1";
 
 async fn server(front: &str, extra: &[&str]) -> LocalServer {
-    let mut extra_args = vec![
+    let mut args = vec![
         "--front".to_string(),
         front.into(),
         "--max-sessions".into(),
         MAX_SESSIONS.to_string(),
     ];
-    extra_args.extend(extra.iter().map(|s| s.to_string()));
-    let options = ServerOptions {
-        extra_args,
-        ..ServerOptions::default()
-    };
-    LocalServer::start(&options)
-        .await
-        .expect("env_server starts")
+    args.extend(extra.iter().map(|s| s.to_string()));
+    start_server(&args).await
 }
 
 /// How long the bystander steps alone before any fault (its baseline), and at least

@@ -262,33 +262,38 @@ mod tests {
 
     #[test]
     fn validate_names_the_field_and_quotes_the_value() {
-        let bad = DeadlineConfig {
-            ceiling_seconds: 5.0,
-            floor_seconds: 8.0,
-            ..DeadlineConfig::default()
-        };
-        assert_eq!(
-            bad.validate().unwrap_err().to_string(),
-            "env.deadlines.ceiling_seconds must be >= env.deadlines.floor_seconds = 8, got 5"
-        );
-        let bad = DeadlineConfig {
-            step_multiple: 0.5,
-            ..DeadlineConfig::default()
-        };
-        assert_eq!(
-            bad.validate().unwrap_err().to_string(),
-            "env.deadlines.step_multiple must be finite and >= 1, got 0.5"
-        );
-        let bad = DeadlineConfig {
-            floor_seconds: f64::NAN,
-            ..DeadlineConfig::default()
-        };
-        assert!(
-            bad.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("floor_seconds")
-        );
-        assert!(DeadlineConfig::default().validate().is_ok());
+        let d = DeadlineConfig::default();
+        let cases = [
+            (
+                DeadlineConfig {
+                    ceiling_seconds: 5.0,
+                    floor_seconds: 8.0,
+                    ..d
+                },
+                "env.deadlines.ceiling_seconds must be >= env.deadlines.floor_seconds = 8, got 5",
+            ),
+            (
+                DeadlineConfig {
+                    step_multiple: 0.5,
+                    ..d
+                },
+                "env.deadlines.step_multiple must be finite and >= 1, got 0.5",
+            ),
+            (
+                DeadlineConfig {
+                    floor_seconds: f64::NAN,
+                    ..d
+                },
+                "env.deadlines.floor_seconds must be finite and > 0, got NaN",
+            ),
+            (
+                DeadlineConfig { lost_after: 0, ..d },
+                "env.deadlines.lost_after must be >= 1, got 0",
+            ),
+        ];
+        for (bad, expected) in cases {
+            assert_eq!(bad.validate().unwrap_err().to_string(), expected);
+        }
+        assert!(d.validate().is_ok());
     }
 }

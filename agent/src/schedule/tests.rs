@@ -18,33 +18,56 @@ fn resumed_schedule(
     counters: Counters,
     origin: PaceOrigin,
 ) -> Schedule {
-    let layout = SnippetLayout {
+    let pace = Pace::Ratio {
+        learner_steps_per_env_step: ratio,
+        min_replay_transitions: min_replay,
+    };
+    Schedule::new(
+        SnippetReplay::new(layout(false), 1000, 0),
+        pace,
+        counters,
+        origin,
+    )
+}
+
+/// A one-step snippet of the test layouts.
+fn snippet() -> Snippet {
+    Snippet {
+        observations: vec![0.0, 0.0],
+        actions: vec![0.0],
+        rewards: vec![0.0],
+        discounts: vec![1.0],
+        behaviour_log_probs: vec![0.0],
+        valid: vec![1.0],
+    }
+}
+
+/// One-step snippets of one observation, action and reward.
+fn layout(on_policy: bool) -> SnippetLayout {
+    SnippetLayout {
         length: 1,
         obs_dim: 1,
         action_width: 1,
         num_rewards: 1,
         discrete: true,
-        on_policy: false,
-    };
-    let pace = Pace::Ratio {
-        learner_steps_per_env_step: ratio,
-        min_replay_transitions: min_replay,
-    };
-    Schedule::new(SnippetReplay::new(layout, 1000, 0), pace, counters, origin)
+        on_policy,
+    }
+}
+
+/// An on-policy schedule of one-step unrolls, `batch_size` per learner step.
+fn on_policy_schedule(batch_size: usize) -> Schedule {
+    Schedule::new(
+        SnippetReplay::new(layout(true), usize::MAX, 0),
+        Pace::OnPolicy { batch_size },
+        Counters::default(),
+        PaceOrigin::default(),
+    )
 }
 
 fn fill(s: &Schedule, n: usize) {
     let mut r = s.replay.lock().unwrap();
     for _ in 0..n {
-        let snippet = Snippet {
-            observations: vec![0.0, 0.0],
-            actions: vec![0.0],
-            rewards: vec![0.0],
-            discounts: vec![1.0],
-            behaviour_log_probs: vec![0.0],
-            valid: vec![1.0],
-        };
-        r.insert(snippet).unwrap();
+        r.insert(snippet()).unwrap();
     }
 }
 
@@ -71,20 +94,7 @@ fn learner_budget_follows_the_ratio_after_warm_up() {
 
 #[test]
 fn on_policy_allows_one_step_per_batch_of_unrolls() {
-    let layout = SnippetLayout {
-        length: 1,
-        obs_dim: 1,
-        action_width: 1,
-        num_rewards: 1,
-        discrete: true,
-        on_policy: true,
-    };
-    let s = Schedule::new(
-        SnippetReplay::new(layout, usize::MAX, 0),
-        Pace::OnPolicy { batch_size: 4 },
-        Counters::default(),
-        PaceOrigin::default(),
-    );
+    let s = on_policy_schedule(4);
     fill(&s, 3);
     assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "3 of 4 unrolls");
     fill(&s, 6);
@@ -184,20 +194,7 @@ pub(super) fn preempted_after_fill() {
 fn the_learner_never_misses_a_commit() {
     const ROUNDS: u64 = 2_000;
     PAUSE_AFTER_FILL_US.store(20, std::sync::atomic::Ordering::Relaxed);
-    let layout = SnippetLayout {
-        length: 1,
-        obs_dim: 1,
-        action_width: 1,
-        num_rewards: 1,
-        discrete: true,
-        on_policy: true,
-    };
-    let s = std::sync::Arc::new(Schedule::new(
-        SnippetReplay::new(layout, usize::MAX, 0),
-        Pace::OnPolicy { batch_size: 1 },
-        Counters::default(),
-        PaceOrigin::default(),
-    ));
+    let s = std::sync::Arc::new(on_policy_schedule(1));
     let learner = {
         let s = s.clone();
         std::thread::spawn(move || {
@@ -211,19 +208,11 @@ fn the_learner_never_misses_a_commit() {
         let s = s.clone();
         std::thread::spawn(move || {
             for acts in 1..=ROUNDS {
-                let snippet = Snippet {
-                    observations: vec![0.0, 0.0],
-                    actions: vec![0.0],
-                    rewards: vec![0.0],
-                    discounts: vec![1.0],
-                    behaviour_log_probs: vec![0.0],
-                    valid: vec![1.0],
-                };
                 let step = ActorStep {
                     actor: 0,
                     acts,
                     env_steps: 1,
-                    snippets: vec![snippet],
+                    snippets: vec![snippet()],
                     episode_returns: Vec::new(),
                 };
                 s.commit(step, |_| Ok(())).unwrap();
