@@ -14,7 +14,11 @@ tests=("$@")
 if [ ${#tests[@]} -eq 0 ]; then
   for f in tests/tests/*.rs; do tests+=("$(basename "$f" .rs)"); done
 fi
-cargo test --locked -q --workspace --no-run
+packages=(-p integration-tests)
+for t in "${tests[@]}"; do
+  if [[ $t == *:* ]]; then packages+=(-p "${t%%:*}"); fi
+done
+cargo test --locked -q "${packages[@]}" --no-run
 logs=stress-logs/$(date +%Y%m%d-%H%M%S)
 mkdir -p "$logs"
 failures=0
