@@ -356,7 +356,11 @@ impl ServerPool {
             match client.with_retry(RetryPolicy::quick()).version().await {
                 Ok(_) => return Ok(Assignment { address, client }),
                 Err(e) => {
-                    self.failed(&address, &e);
+                    if e.unreachable() {
+                        self.failed(&address, &e);
+                    } else {
+                        self.forget(&address);
+                    }
                     last_error = Some(e);
                 }
             }
