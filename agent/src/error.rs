@@ -89,6 +89,18 @@ pub enum EnvError {
         /// What was expected and what was found (never the file's content).
         reason: String,
     },
+    /// The server did not answer a call within its deadline (`env.deadlines`): it is
+    /// slow beyond the session's pace, or unreachable without a refused connection
+    /// saying so (a partition, a blackholed route).
+    #[error("{call} to {server}: no answer within its deadline of {:.1} s (env.deadlines)", waited.as_secs_f64())]
+    Deadline {
+        /// RPC name, e.g. `Step`.
+        call: &'static str,
+        /// The server's address.
+        server: String,
+        /// How long the call waited.
+        waited: std::time::Duration,
+    },
     /// A server address (`--server`, `env.servers`) was malformed or resolved to nothing.
     #[error(transparent)]
     Discovery(#[from] DiscoveryError),
@@ -142,5 +154,18 @@ impl EnvError {
             EnvError::Status { code, .. } => Some(*code),
             _ => None,
         }
+    }
+
+    /// The server did not answer at all (refused, broken or silent connection), as
+    /// opposed to answering with an error.
+    pub fn unreachable(&self) -> bool {
+        self.status_kind() == Some(StatusKind::Unavailable)
+            || matches!(self, EnvError::Connect { .. } | EnvError::Deadline { .. })
+    }
+
+    /// The session is lost (its server unreachable, silent or restarted, which answers
+    /// NOT_FOUND), as opposed to an error a new session would meet again.
+    pub fn lost_session(&self) -> bool {
+        self.unreachable() || self.status_kind() == Some(StatusKind::NotFound)
     }
 }

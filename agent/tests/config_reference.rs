@@ -27,6 +27,7 @@ pub(crate) const SOURCES: &[&str] = &[
     "src/config/network.rs",
     "src/config/shared.rs",
     "src/env/connection.rs",
+    "src/env/deadline.rs",
     "src/sweep/config.rs",
     "src/front/mod.rs",
     "src/config/conditioning.rs",

@@ -16,7 +16,7 @@ import sys
 from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry, RegistryError
 from env_server.security import SecurityConfigError, ServerTls, Tokens, check_exposure
-from env_server.service import DEFAULT_MAX_ENVS_PER_SESSION, DEFAULT_MAX_LIVE_ENVS, FRONTS
+from env_server.service import DEFAULT_KEEPALIVE_S, DEFAULT_MAX_ENVS_PER_SESSION, DEFAULT_MAX_LIVE_ENVS, FRONTS
 from env_server.task import ClosedForm, Objective
 
 
@@ -70,6 +70,14 @@ def _parser() -> argparse.ArgumentParser:
         default=0,
         help="native front: microseconds a StepStream waits for its next request without sleeping; "
         "spends that much CPU per Step to cut B=1 latency on machines slow to wake (default 0: off)",
+    )
+    p.add_argument(
+        "--keepalive-seconds",
+        type=float,
+        default=DEFAULT_KEEPALIVE_S,
+        help="seconds of silence after which the server pings a connection, and waits as long for the answer "
+        "before dropping it: a client gone without closing its connection (a half-open one) is let go, and "
+        f"its streams' sessions with it (default {DEFAULT_KEEPALIVE_S:g})",
     )
     p.add_argument("--tls-cert", help="PEM certificate chain: serve TLS (with --tls-key)")
     p.add_argument("--tls-key", help="PEM private key of --tls-cert")
@@ -148,12 +156,13 @@ def main(argv: list[str] | None = None) -> int:
         or args.max_workers < 0
         or args.max_envs_per_session < 1
         or args.max_live_envs < 1
+        or not args.keepalive_seconds > 0
     ):
         print(
             "env-server: expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0, "
-            "--max-workers >= 0, --max-envs-per-session >= 1, --max-live-envs >= 1; got "
+            "--max-workers >= 0, --max-envs-per-session >= 1, --max-live-envs >= 1, --keepalive-seconds > 0; got "
             f"{args.max_sessions}, {args.max_message_mb}, {args.session_lease}, {args.max_workers}, "
-            f"{args.max_envs_per_session}, {args.max_live_envs}",
+            f"{args.max_envs_per_session}, {args.max_live_envs}, {args.keepalive_seconds}",
             file=sys.stderr,
         )
         return 2
@@ -201,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
             data_dirs=tuple(args.data_dir),
             front=front,
             busy_poll_us=args.busy_poll_us,
+            keepalive_seconds=args.keepalive_seconds,
             tls=tls,
             tokens=tokens,
             insecure=args.insecure,

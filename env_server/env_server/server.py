@@ -37,6 +37,7 @@ from env_server.instances import DEFAULT_MAX_WORKERS
 from env_server.registry import Registry
 from env_server.security import ServerTls, Tokens, check_exposure
 from env_server.service import (
+    DEFAULT_KEEPALIVE_S,
     DEFAULT_MAX_ENVS_PER_SESSION,
     DEFAULT_MAX_LIVE_ENVS,
     FRONTS,
@@ -186,6 +187,7 @@ class _GrpcAioFront:
         port: int,
         max_message_bytes: int,
         busy_poll_us: int,
+        keepalive_seconds: float,
         tls: ServerTls | None,
         tokens: Tokens | None,
     ) -> None:
@@ -193,10 +195,20 @@ class _GrpcAioFront:
             raise ValueError(
                 f"busy_poll_us: expected 0 with the grpcio front (only the native front polls), got {busy_poll_us}"
             )
+        keepalive_ms = int(keepalive_seconds * 1000)
         self.server = grpc.aio.server(
             options=[
                 ("grpc.max_receive_message_length", max_message_bytes),
                 ("grpc.max_send_message_length", max_message_bytes),
+                # Pings after keepalive_seconds of silence, also without calls in flight and
+                # without data in between, and drops a connection whose ping is not answered
+                # as long, so that a half-open connection is let go. grpc core waits for the
+                # answer ping_timeout_ms (default 1 min), not keepalive_timeout_ms alone.
+                ("grpc.keepalive_time_ms", keepalive_ms),
+                ("grpc.keepalive_timeout_ms", keepalive_ms),
+                ("grpc.keepalive_permit_without_calls", 1),
+                ("grpc.http2.max_pings_without_data", 0),
+                ("grpc.http2.ping_timeout_ms", keepalive_ms),
             ]
         )
         handlers = _method_handlers(service, tokens)
@@ -236,6 +248,7 @@ class _NativeFront:
         port: int,
         max_message_bytes: int,
         busy_poll_us: int,
+        keepalive_seconds: float,
         tls: ServerTls | None,
         tokens: Tokens | None,
     ) -> None:
@@ -247,6 +260,7 @@ class _NativeFront:
             port,
             max_message_bytes,
             busy_poll_us,
+            keepalive_seconds=keepalive_seconds,
             tls=None if tls is None else (tls.cert_chain, tls.private_key, tls.client_ca),
             tokens=None if tokens is None else list(tokens.entries),
         )
@@ -300,6 +314,7 @@ async def serve(
     data_dirs: tuple[str, ...] = (),
     front: str = "auto",
     busy_poll_us: int = 0,
+    keepalive_seconds: float = DEFAULT_KEEPALIVE_S,
     tls: ServerTls | None = None,
     tokens: Tokens | None = None,
     insecure: bool = False,
@@ -309,6 +324,8 @@ async def serve(
 
     `busy_poll_us` (native front only): how long a StepStream waits for its next request
     without sleeping; it trades that much CPU per Step for B=1 latency (see docs/env-server.md, "Fronts").
+    `keepalive_seconds`: silence after which a connection is pinged, and the wait for the
+    answer before it is dropped (service.DEFAULT_KEEPALIVE_S).
     `tls` and `tokens` secure the EnvService; a non-loopback `host` needs both unless
     `insecure` (security.check_exposure raises SecurityConfigError).
     """
@@ -325,12 +342,14 @@ async def serve(
         max_live_envs=max_live_envs,
         data_dirs=DataDirs(data_dirs),
     )
-    running = _FRONT_CLASSES[front](service, host, port, max_message_bytes, busy_poll_us, tls, tokens)
+    running = _FRONT_CLASSES[front](
+        service, host, port, max_message_bytes, busy_poll_us, keepalive_seconds, tls, tokens
+    )
     await running.start()
     print(f"LISTENING {_bind_address(host, running.port)}", flush=True)
     log.info(
         "serving %s on %s through the %s front, %s, %s (max sessions %d, max message %d bytes, lease %g s, "
-        "max workers %d, max instances %d per session and %d live, data directories %s, "
+        "keepalive %g s, max workers %d, max instances %d per session and %d live, data directories %s, "
         "MuJoCo rendering through MUJOCO_GL=%s)",
         SERVICE_NAME,
         _bind_address(host, running.port),
@@ -340,6 +359,7 @@ async def serve(
         max_sessions,
         max_message_bytes,
         lease_seconds,
+        keepalive_seconds,
         max_workers,
         max_envs_per_session,
         max_live_envs,

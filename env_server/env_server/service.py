@@ -60,6 +60,11 @@ CAPABILITIES = (
 )
 # The transports server.py can serve this service through (`--front`).
 FRONTS = ("auto", "native", "grpcio")
+# Seconds of silence before a front pings a connection, and for its answer before it drops
+# the connection (--keepalive-seconds): a client gone without a FIN or RST (its host died,
+# a partition) would otherwise hold its connection, and the sessions of its StepStreams,
+# until their lease runs out; the connection itself, forever.
+DEFAULT_KEEPALIVE_S = 30.0
 # Unary RPCs answered on the asyncio loop (Step is answered inline by `step`).
 UNARY_METHODS = ("GetVersion", "ListEnvs", "Make", "Reset", "CloseSession", "Close", "Render")
 # Instances one session may hold, and all sessions together (--max-envs-per-session,

@@ -47,6 +47,8 @@ def test_busy_polling_native_front_steps_exactly_as_grpcio() -> None:
             "--busy-poll-us: expected 0, or > 0 with the native front; got 5 with the grpcio front",
         ),
         (["--busy-poll-us", "-1"], "--busy-poll-us: expected 0, or > 0 with the native front; got -1"),
+        # The flags' values in their order: --keepalive-seconds last.
+        (["--keepalive-seconds", "0"], "1024, 4096, 0.0\n"),
     ],
 )
 def test_bad_front_flags_exit_with_a_message(args: list[str], expected: str) -> None:

@@ -18,6 +18,35 @@ pub fn smoke_config(runs_dir: &Path) -> TrainConfig {
     cfg
 }
 
+/// The pendulum preset (`configs/mompo/pendulum.toml`) cut to a short run: 1,600 env
+/// steps, 400 transitions before the first learner step, one evaluation episode,
+/// its runs under `runs_dir`.
+pub fn short_pendulum(runs_dir: &Path) -> TrainConfig {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum.toml");
+    let mut cfg = TrainConfig::load_with(
+        &path,
+        &[
+            "run.total_env_steps=1600".into(),
+            "run.min_replay_transitions=400".into(),
+            "run.eval_episodes=1".into(),
+        ],
+    )
+    .expect("pendulum preset loads");
+    cfg.run.runs_dir = runs_dir.to_path_buf();
+    cfg
+}
+
+/// A local env_server with `extra_args` (e.g. `--max-sessions 4`), started.
+pub async fn start_server(extra_args: &[String]) -> LocalServer {
+    let options = ServerOptions {
+        extra_args: extra_args.to_vec(),
+        ..ServerOptions::default()
+    };
+    LocalServer::start(&options)
+        .await
+        .expect("env_server starts")
+}
+
 /// Column `name` of a run's `episodes.csv`, one value per training episode in order.
 pub fn episode_column(run_dir: &Path, name: &str) -> Vec<f64> {
     let text = std::fs::read_to_string(run_dir.join("episodes.csv")).expect("episodes.csv");
@@ -50,13 +79,8 @@ pub struct Harness {
 impl Harness {
     /// Start a server with extra flags and connect to it.
     pub async fn start(extra_args: &[&str]) -> Harness {
-        let options = ServerOptions {
-            extra_args: extra_args.iter().map(|s| s.to_string()).collect(),
-            ..ServerOptions::default()
-        };
-        let server = LocalServer::start(&options)
-            .await
-            .expect("env_server starts");
+        let args: Vec<String> = extra_args.iter().map(|s| s.to_string()).collect();
+        let server = start_server(&args).await;
         let client = EnvClient::connect(server.address())
             .await
             .expect("client connects");
@@ -74,3 +98,6 @@ pub async fn run_sweep(
         .await
         .unwrap()
 }
+pub mod chaos;
+pub mod faults;
+pub mod proxy;

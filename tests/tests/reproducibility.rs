@@ -16,16 +16,7 @@ use std::path::Path;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train, train_population};
-use integration_tests::smoke_config;
-
-/// This binary's tests run one at a time: side by side in one process, the MO-V-MPO
-/// population test's env_server was now and then gone (connection refused) before its
-/// second population run or its runs alone (4 of 9 tries of the whole binary), which
-/// it never was alone (9 of 9). Not yet explained; issue 22's closing note has it.
-async fn one_at_a_time() -> tokio::sync::MutexGuard<'static, ()> {
-    static ONE: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
-    ONE.lock().await
-}
+use integration_tests::{short_pendulum, smoke_config};
 
 /// What a run wrote that must repeat: `episodes.csv` and `learner.jsonl` without
 /// their wall-clock fields.
@@ -73,23 +64,6 @@ async fn run(cfg: TrainConfig, server: &LocalServer) -> Curve {
     curve(&s.run_dir)
 }
 
-/// A short Gaussian MO-MPO run on the pendulum preset (learner noise every step).
-fn pendulum_config(runs_dir: &Path) -> TrainConfig {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/mompo/pendulum.toml");
-    let mut cfg = TrainConfig::load_with(
-        &path,
-        &[
-            "run.total_env_steps=1600".into(),
-            "run.min_replay_transitions=400".into(),
-            "run.log_period=25".into(),
-            "run.eval_episodes=1".into(),
-        ],
-    )
-    .expect("pendulum preset loads");
-    cfg.run.runs_dir = runs_dir.to_path_buf();
-    cfg
-}
-
 fn with_seed(mut cfg: TrainConfig, seed: u64) -> TrainConfig {
     cfg.seed = seed;
     cfg.learner.seed = seed;
@@ -98,7 +72,6 @@ fn with_seed(mut cfg: TrainConfig, seed: u64) -> TrainConfig {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_same_config_and_seed_give_the_same_learning_curve() {
-    let _turn = one_at_a_time().await;
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
     let mut cfg = smoke_config(runs.path());
@@ -119,12 +92,14 @@ async fn the_same_config_and_seed_give_the_same_learning_curve() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_run_beside_other_runs_matches_the_same_run_alone() {
-    let _turn = one_at_a_time().await;
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
     let mut dst = smoke_config(runs.path());
     dst.run.total_env_steps = 2500;
-    for (name, cfg) in [("dst", dst), ("pendulum", pendulum_config(runs.path()))] {
+    // A short Gaussian MO-MPO run on the pendulum preset (learner noise every step).
+    let mut pendulum = short_pendulum(runs.path());
+    pendulum.run.log_period = 25;
+    for (name, cfg) in [("dst", dst), ("pendulum", pendulum)] {
         let alone = run(cfg.clone(), &server).await;
         assert!(alone.learner.len() >= 10, "{name}: too few learner rows");
         // The same run again, now while a run of another seed trains beside it, both
@@ -195,7 +170,6 @@ async fn an_on_policy_population_member_matches_the_same_run_alone() {
 /// run alone (episodes until `first_step` transitions, learner statistics within
 /// 1e-5 relative over the first 50 learner steps).
 async fn member_matches_alone(base: TrainConfig, settings: &[(u64, f64)], first_step: u64) {
-    let _turn = one_at_a_time().await;
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let mut base = base;
     base.run.log_period = 1;

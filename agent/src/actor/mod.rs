@@ -5,7 +5,8 @@
 //! Continuous actions are sampled unclipped (that is what the replay stores and the
 //! critic sees); the env receives them clipped to [-1, 1] and mapped linearly onto a
 //! finite Box, e.g. [-2, 2] for Pendulum. A session lost to a server restart is
-//! made again and the run continues; when its server stays away, the session is made
+//! made again and the run continues, and so is one whose call missed its deadline
+//! (`env.deadlines`: a silent or partitioned server); when its server stays away, the session is made
 //! on another server the pool's entries list now ([`ServerPool`]).
 //!
 //! **Populations**: one actor serves the P members of a population learner with one
@@ -30,6 +31,7 @@
 //! the learner's steps: each batch is acted by the policy the previous one produced.
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use tch::{Kind, Tensor};
 use tokio::sync::watch;
@@ -48,7 +50,7 @@ use crate::spec::Space;
 
 mod session;
 
-use session::{Conditioner, Live, Sessions, observed, recoverable, restart, start};
+use session::{Conditioner, Live, Sessions, observed, restart, start};
 
 /// One member's part of an actor (a single run is a population of one).
 #[derive(Debug)]
@@ -337,11 +339,12 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         .collect();
     let mut on = server;
     let mut acts = first_act;
+    let began = Instant::now();
     let mut live = match start(&sessions, &on.client, &mut conds, acts).await {
         Ok(live) => live,
         // The server went away between the pool's connect and this session.
-        Err(e) if recoverable(&e) => {
-            match restart(&sessions, &mut on, &e, &mut conds, acts).await? {
+        Err(e) if e.lost_session() => {
+            match restart(&sessions, &mut on, (&e, began), &mut conds, acts).await? {
                 Some(live) => live,
                 None => return Ok(()),
             }
@@ -376,10 +379,11 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 Vec::<f32>::try_from(&Tensor::cat(&log_probs, 0)).expect("f32 log-probs");
             let (env_action, replay_actions) =
                 map.apply(&Tensor::cat(&actions, 0), b * members.len());
+            let called = Instant::now();
             let step = match live.env.step(&env_action).await {
                 Ok(step) => step,
-                Err(e) if recoverable(&e) => {
-                    match restart(&sessions, &mut on, &e, &mut conds, acts).await? {
+                Err(e) if e.lost_session() => {
+                    match restart(&sessions, &mut on, (&e, called), &mut conds, acts).await? {
                         Some(restarted) => {
                             live = restarted;
                             continue;

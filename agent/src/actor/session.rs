@@ -5,13 +5,15 @@
 //! Shapes: P members, B instances per member, O observation size.
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::Instant;
 
 use crate::algo::preferences::PreferenceGrid;
+use crate::env::deadline::Backoff;
+use crate::env::discovery::ServerAddress;
 use crate::env::grpc::{EnvClient, RemoteEnv, RetryPolicy};
 use crate::env::pool::{Assignment, ServerPool};
 use crate::env::{Env, MakeOptions};
-use crate::error::{EnvError, StatusKind};
+use crate::error::EnvError;
 use crate::random::StreamKey;
 use crate::replay::SnippetLayout;
 use crate::replay::adder::SnippetAdder;
@@ -140,47 +142,50 @@ pub(super) async fn start(
     Ok(Live { env, adders, obs })
 }
 
-/// Make the session again after it was lost: on the same server when it answers again
-/// (a restart), else on another address the pool resolves now, backing off between
-/// rounds over all of them; it gives up after about 5 minutes in which no server took
-/// the session. `None`: the run ended meanwhile.
+/// Make the session again after it was lost (`since`: when the call that failed
+/// began): on the same server when it answers again (a restart), else on another
+/// address the pool resolves now, backing off between rounds over all of them; it
+/// gives up after `env.deadlines.reconnect_seconds` in which no server took the
+/// session. A server that missed a deadline is tried last in the first round, so its
+/// actors move within one deadline when another server answers. `None`: the run
+/// ended meanwhile.
 pub(super) async fn restart(
     ctx: &Sessions<'_>,
     on: &mut Assignment,
-    cause: &EnvError,
+    (cause, since): (&EnvError, Instant),
     conds: &mut [Option<Conditioner>],
     acts: u64,
 ) -> Result<Option<Live>, EnvError> {
     tracing::warn!(actor = ctx.id, server = %on.address, error = %cause, "env session lost; reconnecting");
-    let mut delay = Duration::from_millis(200);
+    let pool = ctx.servers;
+    if cause.unreachable() {
+        pool.failed(&on.address, cause);
+    }
+    let mut suspect = matches!(cause, EnvError::Deadline { .. }).then(|| on.address.clone());
+    let mut backoff = Backoff::new(pool.deadlines());
     let mut last = None;
-    // Backoff 0.2 s doubling to 5 s: about 5 minutes over 64 rounds, enough for a
-    // server (or its replacement) to start.
-    for _ in 0..64 {
+    loop {
         if ctx.ended() {
             return Ok(None);
         }
-        for address in ctx.servers.candidates(&on.address).await {
-            let attempt = match ctx.servers.client(&address).await {
-                // Probed with few retries: other addresses wait, and rounds back off.
-                Ok(client) => start(ctx, &client.with_retry(RetryPolicy::quick()), conds, acts)
-                    .await
-                    .map(|live| (live, client)),
-                Err(e) => Err(e),
-            };
-            match attempt {
+        let mut order = pool.candidates(&on.address).await;
+        if let Some(i) = suspect
+            .take()
+            .and_then(|s| order.iter().position(|a| *a == s))
+        {
+            let slow = order.remove(i);
+            order.push(slow);
+        }
+        for address in order {
+            match make_on(ctx, &address, conds, acts).await {
                 Ok((live, client)) => {
-                    if address == on.address {
-                        tracing::info!(actor = ctx.id, server = %address, "env session made again");
-                    } else {
-                        ctx.servers.moved(ctx.id, &on.address, &address);
-                    }
+                    pool.restarted(ctx.id, &on.address, &address, since.elapsed());
                     *on = Assignment { address, client };
                     return Ok(Some(live));
                 }
-                Err(e) if recoverable(&e) => {
-                    if unreachable(&e) {
-                        ctx.servers.forget(&address);
+                Err(e) if e.lost_session() => {
+                    if e.unreachable() {
+                        pool.failed(&address, &e);
                     }
                     tracing::warn!(actor = ctx.id, server = %address, error = %e, "reconnect failed");
                     last = Some(e);
@@ -188,24 +193,31 @@ pub(super) async fn restart(
                 Err(e) => return Err(e),
             }
         }
-        tokio::time::sleep(delay).await;
-        delay = (delay * 2).min(Duration::from_secs(5));
+        if !backoff.wait().await {
+            break;
+        }
     }
     let last = last.map_or_else(String::new, |e| format!(" (last attempt: {e})"));
     Err(EnvError::Process(format!(
-        "actor {}: could not make the session again after: {cause}{last}",
-        ctx.id
+        "actor {}: could not make the session again within env.deadlines.reconnect_seconds = {} after: {cause}{last}",
+        ctx.id,
+        pool.deadlines().reconnect_seconds
     )))
 }
 
-/// The server did not answer at all (as opposed to answering NOT_FOUND).
-fn unreachable(e: &EnvError) -> bool {
-    e.status_kind() == Some(StatusKind::Unavailable) || matches!(e, EnvError::Connect { .. })
-}
-
-pub(super) fn recoverable(e: &EnvError) -> bool {
-    matches!(
-        e.status_kind(),
-        Some(StatusKind::Unavailable | StatusKind::NotFound)
-    ) || matches!(e, EnvError::Connect { .. })
+/// A new session on `address`: a GetVersion within the floor deadline first (Make's
+/// own deadline is the ceiling, far too long to learn that a server is silent), then
+/// Make and Reset, with few retries (other addresses wait, and rounds back off). The
+/// pool's client comes back for the actor's later calls.
+async fn make_on(
+    ctx: &Sessions<'_>,
+    address: &ServerAddress,
+    conds: &mut [Option<Conditioner>],
+    acts: u64,
+) -> Result<(Live, EnvClient), EnvError> {
+    let client = ctx.servers.client(address).await?;
+    let quick = client.with_retry(RetryPolicy::quick());
+    quick.version().await?;
+    let live = start(ctx, &quick, conds, acts).await?;
+    Ok((live, client))
 }

@@ -5,6 +5,7 @@
 //! demos and tests. Shapes: observations `[B, ...]` per leaf, reward `[B, K]`.
 
 pub mod connection;
+pub mod deadline;
 pub mod discovery;
 pub mod frames;
 pub mod grpc;

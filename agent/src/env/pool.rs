@@ -6,13 +6,21 @@
 //! names, `file:` lists) are resolved at start and again whenever an actor looks for
 //! a new home; a resolve that fails keeps the addresses last seen. The learner and the
 //! replay never see the pool: a lost server costs only its actors' in-flight episodes.
+//!
+//! A server that fails `lost_after` times in a row (missed deadlines, refused
+//! connections; [`DeadlineConfig`]) counts as lost: actors looking for a new home try
+//! it after every other server, until it answers again. The pool also keeps what the
+//! run's faults cost ([`EnvFaults`], `summary.json`'s `env_faults`).
 
 use std::collections::BTreeMap;
+use std::future::Future;
 use std::sync::Mutex;
+use std::time::Duration;
 
 use serde::Serialize;
 
 use super::connection::{ConnectionConfig, Credentials};
+use super::deadline::{Backoff, DeadlineConfig};
 use super::discovery::{ServerAddress, ServerSource};
 use super::grpc::{EnvClient, RetryPolicy};
 use crate::error::EnvError;
@@ -44,6 +52,20 @@ pub struct ActorServers {
     pub servers: Vec<String>,
 }
 
+/// What a run's env faults cost (`summary.json`'s `env_faults`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct EnvFaults {
+    /// Calls that got no answer within their deadline (`env.deadlines`).
+    pub deadline_misses: u64,
+    /// Sessions made again after one was lost, on the same server or another.
+    pub restarts: u64,
+    /// Of those, the ones made on another server.
+    pub moves: u64,
+    /// Seconds actors spent from the start of the call that failed to their new
+    /// session, summed over restarts.
+    pub seconds_lost: f64,
+}
+
 /// What the pool learned so far.
 #[derive(Debug, Default)]
 struct PoolState {
@@ -55,6 +77,17 @@ struct PoolState {
     load: BTreeMap<ServerAddress, usize>,
     /// Every address each actor was pinned to.
     history: BTreeMap<usize, Vec<ServerAddress>>,
+    /// Failures in a row of each address (reset when it answers).
+    failures: BTreeMap<ServerAddress, u32>,
+    /// What the faults cost so far.
+    faults: EnvFaults,
+}
+
+impl PoolState {
+    /// Whether `address` failed often enough in a row to count as lost.
+    fn lost(&self, address: &ServerAddress, lost_after: u32) -> bool {
+        self.failures.get(address).is_some_and(|&n| n >= lost_after)
+    }
 }
 
 /// The env servers of a run and the actors on them.
@@ -62,18 +95,28 @@ struct PoolState {
 pub struct ServerPool {
     entries: Vec<Entry>,
     credentials: Credentials,
+    deadlines: DeadlineConfig,
     /// Never held across an await.
     state: Mutex<PoolState>,
 }
 
 impl ServerPool {
-    /// Parse `specs`, resolve them and connect to every address found. A plain address
-    /// that cannot be reached is an error (as it always was); an address found by a
-    /// `dns:` or `file:` entry that cannot be reached is skipped with a warning while
-    /// another answers.
+    /// [`Self::connect_with`] the default deadlines.
     pub async fn connect(
         specs: &[String],
         connection: &ConnectionConfig,
+    ) -> Result<Self, EnvError> {
+        Self::connect_with(specs, connection, DeadlineConfig::default()).await
+    }
+
+    /// Parse `specs`, resolve them and connect to every address found, every call
+    /// waiting as `deadlines` say. A plain address that cannot be reached is an error
+    /// (as it always was); an address found by a `dns:` or `file:` entry that cannot
+    /// be reached is skipped with a warning while another answers.
+    pub async fn connect_with(
+        specs: &[String],
+        connection: &ConnectionConfig,
+        deadlines: DeadlineConfig,
     ) -> Result<Self, EnvError> {
         if specs.is_empty() {
             return Err(EnvError::BadInput {
@@ -101,7 +144,7 @@ impl ServerPool {
             }
         }
         let attempts = futures::future::join_all(found.iter().map(|(address, _)| {
-            EnvClient::connect_to(address, &credentials, RetryPolicy::default())
+            EnvClient::connect_to(address, &credentials, RetryPolicy::default(), deadlines)
         }))
         .await;
         let mut state = PoolState::default();
@@ -130,12 +173,18 @@ impl ServerPool {
         Ok(Self {
             entries,
             credentials,
+            deadlines,
             state: Mutex::new(state),
         })
     }
 
     fn state(&self) -> std::sync::MutexGuard<'_, PoolState> {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// How long the run's calls wait.
+    pub fn deadlines(&self) -> &DeadlineConfig {
+        &self.deadlines
     }
 
     /// A connected server, the first one found: for one-off sessions (the spec probe,
@@ -172,8 +221,9 @@ impl ServerPool {
     }
 
     /// Addresses to try for an actor whose session on `current` was lost, resolved
-    /// afresh: `current` first while its entry still lists it (a restarted server takes
-    /// its actors back), then the others, fewest actors first.
+    /// afresh: `current` first while its entry still lists it and it does not count as
+    /// lost (a restarted server takes its actors back), then the others, fewest actors
+    /// first, and the lost ones last.
     pub async fn candidates(&self, current: &ServerAddress) -> Vec<ServerAddress> {
         let mut found: Vec<ServerAddress> = Vec::new();
         let mut complete = true;
@@ -205,21 +255,17 @@ impl ServerPool {
                 }
             }
         }
+        let lost_after = self.deadlines.lost_after;
         let load = |a: &ServerAddress| state.load.get(a).copied().unwrap_or(0);
-        let mut others: Vec<(usize, usize, ServerAddress)> = state
+        let rank = |a: &ServerAddress| (state.lost(a, lost_after), a != current, load(a));
+        let mut ordered: Vec<((bool, bool, usize), usize, ServerAddress)> = state
             .known
             .iter()
             .enumerate()
-            .filter(|(_, a)| *a != current)
-            .map(|(i, a)| (load(a), i, a.clone()))
+            .map(|(i, a)| (rank(a), i, a.clone()))
             .collect();
-        others.sort();
-        let mut ordered = Vec::with_capacity(others.len() + 1);
-        if state.known.contains(current) {
-            ordered.push(current.clone());
-        }
-        ordered.extend(others.into_iter().map(|(_, _, a)| a));
-        ordered
+        ordered.sort();
+        ordered.into_iter().map(|(_, _, a)| a).collect()
     }
 
     /// The channel to `address`, made now when there is none (with a few quick attempts:
@@ -228,9 +274,14 @@ impl ServerPool {
         if let Some(client) = self.state().clients.get(address) {
             return Ok(client.clone());
         }
-        let client = EnvClient::connect_to(address, &self.credentials, RetryPolicy::quick())
-            .await?
-            .with_retry(RetryPolicy::default());
+        let client = EnvClient::connect_to(
+            address,
+            &self.credentials,
+            RetryPolicy::quick(),
+            self.deadlines,
+        )
+        .await?
+        .with_retry(RetryPolicy::default());
         self.state().clients.insert(address.clone(), client.clone());
         Ok(client)
     }
@@ -240,15 +291,51 @@ impl ServerPool {
         self.state().clients.remove(address);
     }
 
-    /// `actor` now has its session on `to` instead of `from`.
-    pub fn moved(&self, actor: usize, from: &ServerAddress, to: &ServerAddress) {
-        tracing::warn!(actor, from = %from, to = %to, "env server lost; actor moved to another server");
+    /// `address` did not answer (`error`: a missed deadline, a refused connection):
+    /// its channel goes (a blackholed connection would hold every later call too),
+    /// and it counts one more failure in a row.
+    pub fn failed(&self, address: &ServerAddress, error: &EnvError) {
         let mut state = self.state();
+        state.clients.remove(address);
+        if matches!(error, EnvError::Deadline { .. }) {
+            state.faults.deadline_misses += 1;
+        }
+        let n = state.failures.entry(address.clone()).or_default();
+        *n += 1;
+        if *n == self.deadlines.lost_after {
+            tracing::warn!(server = %address, failures = *n, "env server counts as lost; actors try it last");
+        }
+    }
+
+    /// `actor`'s session, lost on `from`, was made again on `to` (`lost`: from the start
+    /// of the call that failed until now); `to` answered, so its failures are forgotten.
+    pub fn restarted(
+        &self,
+        actor: usize,
+        from: &ServerAddress,
+        to: &ServerAddress,
+        lost: Duration,
+    ) {
+        let mut state = self.state();
+        state.failures.remove(to);
+        state.faults.restarts += 1;
+        state.faults.seconds_lost += lost.as_secs_f64();
+        if from == to {
+            tracing::info!(actor, server = %to, lost_s = lost.as_secs_f64(), "env session made again");
+            return;
+        }
+        tracing::warn!(actor, from = %from, to = %to, lost_s = lost.as_secs_f64(), "env server lost; actor moved to another server");
+        state.faults.moves += 1;
         if let Some(n) = state.load.get_mut(from) {
             *n = n.saturating_sub(1);
         }
         *state.load.entry(to.clone()).or_default() += 1;
         state.history.entry(actor).or_default().push(to.clone());
+    }
+
+    /// What the run's faults cost so far.
+    pub fn faults(&self) -> EnvFaults {
+        self.state().faults.clone()
     }
 
     /// A server that answers now: the first found if it still does, else any other
@@ -269,7 +356,11 @@ impl ServerPool {
             match client.with_retry(RetryPolicy::quick()).version().await {
                 Ok(_) => return Ok(Assignment { address, client }),
                 Err(e) => {
-                    self.forget(&address);
+                    if e.unreachable() {
+                        self.failed(&address, &e);
+                    } else {
+                        self.forget(&address);
+                    }
                     last_error = Some(e);
                 }
             }
@@ -279,6 +370,38 @@ impl ServerPool {
             expected: "at least one address".into(),
             got: "none after resolving again".into(),
         }))
+    }
+
+    /// `call` on a server that answers ([`Self::live`]), made again on a lost session
+    /// or a silent server, with [`Backoff`] between attempts until
+    /// `reconnect_seconds` pass: the run's one-off sessions (its spec probe, its final
+    /// evaluation) ride out a fault as the actors' sessions do. `what` names the call
+    /// in the log.
+    pub async fn on_live<T, F, Fut>(&self, what: &'static str, mut call: F) -> Result<T, EnvError>
+    where
+        F: FnMut(EnvClient) -> Fut,
+        Fut: Future<Output = Result<T, EnvError>>,
+    {
+        let mut backoff = Backoff::new(&self.deadlines);
+        loop {
+            let (address, error) = match self.live().await {
+                Ok(server) => match call(server.client).await {
+                    Ok(done) => return Ok(done),
+                    Err(e) => (Some(server.address), e),
+                },
+                Err(e) => (None, e),
+            };
+            if !error.lost_session() {
+                return Err(error);
+            }
+            if let Some(address) = address.filter(|_| error.unreachable()) {
+                self.failed(&address, &error);
+            }
+            tracing::warn!(what, error = %error, "env call failed; trying again");
+            if !backoff.wait().await {
+                return Err(error);
+            }
+        }
     }
 
     /// Every actor's servers, by actor number.

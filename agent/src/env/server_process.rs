@@ -135,6 +135,11 @@ impl LocalServer {
         &self.address
     }
 
+    /// The server's process id (None once it has been waited for).
+    pub fn pid(&self) -> Option<u32> {
+        self.child.id()
+    }
+
     /// Port the server listens on.
     pub fn port(&self) -> u16 {
         self.address

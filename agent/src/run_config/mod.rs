@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, LearnerConfig};
 use crate::env::connection::ConnectionConfig;
+use crate::env::deadline::DeadlineConfig;
 use crate::env::discovery::{DiscoveryError, FORMS, ServerSource};
 use crate::front::FrontConfig;
 
@@ -51,6 +52,10 @@ pub struct EnvConfig {
     /// every server, and need `servers` (a local server is plain loopback).
     #[serde(default, skip_serializing_if = "ConnectionConfig::is_empty")]
     pub connection: ConnectionConfig,
+    /// How long each call to a server may wait for its answer, and when a server that
+    /// keeps missing deadlines counts as lost (`[env.deadlines]`; docs/reliability.md).
+    #[serde(default)]
+    pub deadlines: DeadlineConfig,
     /// Env instances per actor session (B).
     #[serde(default = "default_num_envs")]
     pub num_envs: usize,
@@ -224,6 +229,7 @@ impl TrainConfig {
             return invalid("env.num_actors", ">= 1", "0".into());
         }
         self.env.connection.validate()?;
+        self.env.deadlines.validate()?;
         for (i, spec) in self.env.servers.iter().enumerate() {
             match ServerSource::parse(spec) {
                 Ok(_) => {}

@@ -43,13 +43,14 @@ impl TrainConfig {
         self.run.eval_period = from.run.eval_period;
         self.env.servers = from.env.servers.clone();
         self.env.connection = from.env.connection.clone();
+        self.env.deadlines = from.env.deadlines;
         self.learner.device = from.learner.device;
     }
 }
 
 /// What `--set` (and the flags) may change on `--resume`: the budget, logging and
 /// checkpoint periods, the final evaluation's length, and where the run finds its
-/// servers and device. Everything else would make the continuation another run.
+/// servers (and how long it waits for them) and device. Everything else would make the continuation another run.
 pub const RESUMABLE_FIELDS: &[&str] = &[
     "run.total_env_steps",
     "run.log_period",
@@ -59,6 +60,7 @@ pub const RESUMABLE_FIELDS: &[&str] = &[
     "run.eval_period",
     "env.servers",
     "env.connection",
+    "env.deadlines",
     "learner.device",
 ];
 

@@ -351,18 +351,21 @@ impl Schedule {
     }
 
     /// Learner: block until a step is allowed; false when the run is stopping.
+    ///
+    /// The replay's fill is read with the counters' lock held (commits change both
+    /// under it, and wake the learner after releasing it). Read before taking the
+    /// lock, a commit landing in between was judged with the old fill and its wake-up
+    /// was already spent: the learner slept while the actor waited for it, for good
+    /// (issue 36: the hung runs of a loaded machine, whose preemptions widen that gap).
     pub fn wait_for_work(&self) -> bool {
         let mut c = self.lock();
         loop {
             if c.stop {
                 return false;
             }
-            drop(c);
             let fill = self.fill();
-            c = self.lock();
-            if c.stop {
-                return false;
-            }
+            #[cfg(test)]
+            tests::preempted_after_fill();
             if c.learner_steps < self.allowed(&c, fill) {
                 return true;
             }
@@ -385,8 +388,8 @@ impl Schedule {
 
     /// Whether the learner is caught up once it has taken `more` steps beyond those done.
     fn caught_up_after(&self, more: u64) -> bool {
-        let fill = self.fill();
         let c = self.lock();
+        let fill = self.fill();
         c.stop || c.learner_steps + more >= self.allowed(&c, fill)
     }
 

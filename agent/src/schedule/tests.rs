@@ -18,33 +18,56 @@ fn resumed_schedule(
     counters: Counters,
     origin: PaceOrigin,
 ) -> Schedule {
-    let layout = SnippetLayout {
+    let pace = Pace::Ratio {
+        learner_steps_per_env_step: ratio,
+        min_replay_transitions: min_replay,
+    };
+    Schedule::new(
+        SnippetReplay::new(layout(false), 1000, 0),
+        pace,
+        counters,
+        origin,
+    )
+}
+
+/// A one-step snippet of the test layouts.
+fn snippet() -> Snippet {
+    Snippet {
+        observations: vec![0.0, 0.0],
+        actions: vec![0.0],
+        rewards: vec![0.0],
+        discounts: vec![1.0],
+        behaviour_log_probs: vec![0.0],
+        valid: vec![1.0],
+    }
+}
+
+/// One-step snippets of one observation, action and reward.
+fn layout(on_policy: bool) -> SnippetLayout {
+    SnippetLayout {
         length: 1,
         obs_dim: 1,
         action_width: 1,
         num_rewards: 1,
         discrete: true,
-        on_policy: false,
-    };
-    let pace = Pace::Ratio {
-        learner_steps_per_env_step: ratio,
-        min_replay_transitions: min_replay,
-    };
-    Schedule::new(SnippetReplay::new(layout, 1000, 0), pace, counters, origin)
+        on_policy,
+    }
+}
+
+/// An on-policy schedule of one-step unrolls, `batch_size` per learner step.
+fn on_policy_schedule(batch_size: usize) -> Schedule {
+    Schedule::new(
+        SnippetReplay::new(layout(true), usize::MAX, 0),
+        Pace::OnPolicy { batch_size },
+        Counters::default(),
+        PaceOrigin::default(),
+    )
 }
 
 fn fill(s: &Schedule, n: usize) {
     let mut r = s.replay.lock().unwrap();
     for _ in 0..n {
-        let snippet = Snippet {
-            observations: vec![0.0, 0.0],
-            actions: vec![0.0],
-            rewards: vec![0.0],
-            discounts: vec![1.0],
-            behaviour_log_probs: vec![0.0],
-            valid: vec![1.0],
-        };
-        r.insert(snippet).unwrap();
+        r.insert(snippet()).unwrap();
     }
 }
 
@@ -71,20 +94,7 @@ fn learner_budget_follows_the_ratio_after_warm_up() {
 
 #[test]
 fn on_policy_allows_one_step_per_batch_of_unrolls() {
-    let layout = SnippetLayout {
-        length: 1,
-        obs_dim: 1,
-        action_width: 1,
-        num_rewards: 1,
-        discrete: true,
-        on_policy: true,
-    };
-    let s = Schedule::new(
-        SnippetReplay::new(layout, usize::MAX, 0),
-        Pace::OnPolicy { batch_size: 4 },
-        Counters::default(),
-        PaceOrigin::default(),
-    );
+    let s = on_policy_schedule(4);
     fill(&s, 3);
     assert_eq!(s.allowed(&s.counters(), s.fill()), 0, "3 of 4 unrolls");
     fill(&s, 6);
@@ -159,4 +169,69 @@ fn a_resume_without_replay_refills_then_goes_on_at_the_ratio() {
     // counting from zero would allow (10,020 - 10) * 0.25 - 2,497 = 5 at once (and
     // about min_replay * ratio more at a realistic warm-up).
     assert_eq!(s.allowed(&s.counters(), s.fill()), learner_steps + 2);
+}
+
+/// Microseconds [`preempted_after_fill`] pauses for (0: none).
+static PAUSE_AFTER_FILL_US: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Where `wait_for_work` has read the replay's fill and not yet decided to wait: a
+/// pause here is what a preemption on a loaded machine makes.
+pub(super) fn preempted_after_fill() {
+    let us = PAUSE_AFTER_FILL_US.load(std::sync::atomic::Ordering::Relaxed);
+    if us > 0 {
+        std::thread::sleep(std::time::Duration::from_micros(us));
+    }
+}
+
+/// A learner that waits for work wakes for every commit that allows a step, also when
+/// it is preempted between reading the replay's fill and deciding to wait. It once
+/// read the fill before taking the counters' lock: with this pause between the two,
+/// that code hung within 10 of these rounds (a commit in the gap was judged with the
+/// old fill, and its wake-up was spent before the learner waited). An actor commits one
+/// unroll at a time (one learner step each) and waits for the learner before the next,
+/// as on-policy actors do.
+#[test]
+fn the_learner_never_misses_a_commit() {
+    const ROUNDS: u64 = 2_000;
+    PAUSE_AFTER_FILL_US.store(20, std::sync::atomic::Ordering::Relaxed);
+    let s = std::sync::Arc::new(on_policy_schedule(1));
+    let learner = {
+        let s = s.clone();
+        std::thread::spawn(move || {
+            while s.wait_for_work() {
+                s.learner_stepped();
+            }
+        })
+    };
+    let (done_tx, done_rx) = std::sync::mpsc::channel();
+    let actor = {
+        let s = s.clone();
+        std::thread::spawn(move || {
+            for acts in 1..=ROUNDS {
+                let step = ActorStep {
+                    actor: 0,
+                    acts,
+                    env_steps: 1,
+                    snippets: vec![snippet()],
+                    episode_returns: Vec::new(),
+                };
+                s.commit(step, |_| Ok(())).unwrap();
+                while !s.caught_up() {
+                    std::thread::yield_now();
+                }
+                s.replay.lock().unwrap().sample(1);
+            }
+            done_tx.send(()).unwrap();
+        })
+    };
+    let finished = done_rx.recv_timeout(std::time::Duration::from_secs(60));
+    PAUSE_AFTER_FILL_US.store(0, std::sync::atomic::Ordering::Relaxed);
+    let steps = s.counters().learner_steps;
+    s.stop(None);
+    assert!(
+        finished.is_ok(),
+        "the learner slept through a commit: {steps} learner steps of {ROUNDS}"
+    );
+    actor.join().unwrap();
+    learner.join().unwrap();
 }

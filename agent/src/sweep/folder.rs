@@ -14,6 +14,7 @@ use super::{SweepConfig, SweepError, setting_label, shard::Shard};
 use crate::checkpoint::run::latest_checkpoint;
 use crate::config::DeviceChoice;
 use crate::env::connection::ConnectionConfig;
+use crate::env::deadline::DeadlineConfig;
 use crate::metrics::write_json_atomic;
 use crate::run_config::TrainConfig;
 use crate::run_name;
@@ -293,12 +294,14 @@ impl SweepFolder {
     }
 
     /// The sweep and base config with what may differ between two machines running
-    /// the same sweep (learner device, servers and how to reach them) set aside.
+    /// the same sweep (learner device, servers, how to reach them and how long to wait
+    /// for them) set aside.
     pub(super) fn comparable(&self) -> (SweepConfig, TrainConfig) {
         let mut base = self.base.clone();
         base.learner.device = DeviceChoice::default();
         base.env.servers.clear();
         base.env.connection = ConnectionConfig::default();
+        base.env.deadlines = DeadlineConfig::default();
         (self.sweep.clone(), base)
     }
 }

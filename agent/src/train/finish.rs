@@ -14,6 +14,7 @@ use crate::algo::objectives::LearnerDims;
 use crate::algo::preferences::PreferenceGrid;
 use crate::env::EpisodeSummary;
 use crate::env::pool::ServerPool;
+use crate::error::EnvError;
 use crate::eval::{evaluate, evaluate_recorded};
 use crate::metrics::mean_of;
 use crate::metrics::{RunFiles, write_json_atomic};
@@ -30,12 +31,14 @@ pub(super) struct FinalEvaluation {
     pub video: Option<VideoReport>,
 }
 
-/// The evaluation episodes, on a live server; none when the run was interrupted, since
-/// whoever stopped it wants it to end soon.
+/// The evaluation episodes of the policy `policy` makes, on a live server; none when
+/// the run was interrupted, since whoever stopped it wants it to end soon. Without a
+/// video, an evaluation whose session is lost (a fault between agent and server) is
+/// made again from its first episode, with the same seeds.
 pub(super) async fn final_evaluation(
     cfg: &TrainConfig,
     servers: &ServerPool,
-    policy: ActorPolicy,
+    policy: &(dyn Fn() -> Result<ActorPolicy, EnvError> + Sync),
     interrupted: bool,
     video: Option<&VideoPlan>,
     run_dir: &Path,
@@ -46,20 +49,25 @@ pub(super) async fn final_evaluation(
             video: None,
         });
     }
-    let client = servers.live().await?.client;
     let episodes = cfg.run.eval_episodes;
     Ok(match video {
         Some(plan) => {
+            let client = servers.live().await?.client;
             let path = run_dir.join("videos").join("final.mp4");
             let (episodes, video) =
-                evaluate_recorded(&client, cfg, policy, episodes, &path, &plan.options).await?;
+                evaluate_recorded(&client, cfg, policy()?, episodes, &path, &plan.options).await?;
             FinalEvaluation {
                 episodes,
                 video: Some(video),
             }
         }
         None => FinalEvaluation {
-            episodes: evaluate(&client, cfg, policy, episodes).await?,
+            episodes: servers
+                .on_live("final evaluation", |client| {
+                    let policy = policy();
+                    async move { evaluate(&client, cfg, policy?, episodes).await }
+                })
+                .await?,
             video: None,
         },
     })
@@ -95,20 +103,23 @@ pub(super) async fn finish_member(
 ) -> Result<TrainSummary, TrainError> {
     let cfg = &run.cfg;
     let counters = run.schedule.counters();
-    let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
-    policy
-        .load(snapshot)
-        .map_err(|e| TrainError::Stopped(e.to_string()))?;
-    if let Some(grid) = grid {
-        policy = policy.at_preference(&grid.default_features());
-    }
+    let policy = || {
+        let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
+        policy
+            .load(snapshot)
+            .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+        Ok(match grid {
+            Some(grid) => policy.at_preference(&grid.default_features()),
+            None => policy,
+        })
+    };
     let FinalEvaluation {
         episodes: eval,
         video: eval_video,
     } = final_evaluation(
         cfg,
         servers,
-        policy,
+        &policy,
         counters.interrupted.is_some(),
         options.video.as_ref(),
         &run.run_dir,
@@ -149,6 +160,7 @@ pub(super) async fn finish_member(
         interrupted: counters.interrupted.clone(),
         eval_video,
         actor_servers: servers.actor_servers(),
+        env_faults: servers.faults(),
         front,
     };
     write_reports(&summary, &run.files)?;

@@ -29,7 +29,7 @@ use crate::algo::preferences::PreferenceGrid;
 use crate::config::ConfigError;
 use crate::device::{choose_device, configure_threads};
 use crate::env::EpisodeSummary;
-use crate::env::pool::{ActorServers, ServerPool};
+use crate::env::pool::{ActorServers, EnvFaults, ServerPool};
 use crate::error::EnvError;
 use crate::front::FrontSummary;
 use crate::learner::{LearnerContext, LearnerDone, LearnerLoopError, MemberLoop, run_learner};
@@ -164,6 +164,9 @@ pub struct TrainSummary {
     /// The env servers each actor had its session on, in order (more than one when
     /// its server was lost and it moved).
     pub actor_servers: Vec<ActorServers>,
+    /// What env faults (missed deadlines, lost sessions) cost the run's actors; shared
+    /// by a population's members.
+    pub env_faults: EnvFaults,
     /// ε-conditioned runs: the front of the deterministic policy over the preference
     /// grid (also `<run>/front/`); the evaluation above is at the grid's middle point.
     pub front: Option<FrontSummary>,
@@ -206,8 +209,15 @@ pub async fn train_population(
     check_population_run(&cfgs, &options)?;
     let cfg = cfgs[0].clone();
     configure_threads(cfg.learner.num_threads);
-    let servers = Arc::new(ServerPool::connect(addresses, &cfg.env.connection).await?);
-    let spec = probe_spec(&servers.first().client, &cfg).await?;
+    let servers = Arc::new(
+        ServerPool::connect_with(addresses, &cfg.env.connection, cfg.env.deadlines).await?,
+    );
+    let probe = &cfg;
+    let spec = servers
+        .on_live("spec probe", |client| async move {
+            probe_spec(&client, probe).await
+        })
+        .await?;
     let dims =
         LearnerDims::from_spec(&spec)?.with_preference_features(cfg.learner.preference_features());
     for c in &cfgs {

@@ -75,12 +75,13 @@ appendix A, and presets in `configs/` override it as their comments say. Every t
 strict: an unknown key is an error that names it. `--set dotted.path=value` overrides
 any field from the command line (array elements by index: `learner.objectives.1.epsilon`);
 with `train --resume`, only the fields a running run may change (the budget, log and
-checkpoint periods, `run.checkpoint_replay`, `run.eval_episodes`, servers, device).
+checkpoint periods, `run.checkpoint_replay`, `run.eval_episodes`, servers, deadlines,
+device).
 
 This file is generated from the doc comments of the config structs
 (`agent/src/config/`, `agent/src/run_config/`, `agent/src/sweep/config.rs`,
-`agent/src/env/connection.rs`) and their `Default`s; a test fails when it is stale or a
-field has no doc comment. Regenerate it after changing a config struct:
+`agent/src/env/connection.rs`, `agent/src/env/deadline.rs`) and their `Default`s; a test
+fails when it is stale or a field has no doc comment. Regenerate it after changing a config struct:
 
 ```sh
 UPDATE_CONFIG_REFERENCE=1 cargo test -p agent --test config_reference

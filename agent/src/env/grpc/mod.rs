@@ -3,35 +3,36 @@
 //! Every proto message is converted to the plain types of [`crate::spec`] and
 //! [`crate::env`] here, field by field, so a protocol change breaks the build in
 //! one place. Only UNAVAILABLE is retried (with exponential backoff); every other
-//! status becomes a typed [`EnvError::Status`] carrying the server's message.
+//! status becomes a typed [`EnvError::Status`] carrying the server's message. Every
+//! call has a deadline ([`DeadlineConfig`]; a Step's and a Reset's follow the
+//! session's measured pace), and a call that misses it is [`EnvError::Deadline`].
 //! Servers on other hosts are reached over TLS with a bearer token ([`Credentials`]).
 
 use std::future::Future;
+use std::time::{Duration, Instant};
 
 use mo_env_proto::v1 as pb;
 use pb::env_service_client::EnvServiceClient;
-use tokio::sync::mpsc;
-use tokio_stream::wrappers::ReceiverStream;
 
 mod channel;
 mod convert;
+mod remote;
 mod render;
 mod status;
 
 use channel::{Bearer, Stub};
+pub use remote::RemoteEnv;
 pub use status::RetryPolicy;
 use status::{chain, is_unavailable, status_error};
 
-use convert::{
-    autoreset_to_proto, missing, named_from_proto, objective_from_proto, observation_from_proto,
-    spec_from_proto, step_from_proto, tensor_to_proto,
-};
+use convert::{autoreset_to_proto, missing, objective_from_proto, spec_from_proto};
 
+use super::MakeOptions;
 use super::connection::Credentials;
+use super::deadline::{CallTimes, DeadlineConfig};
 use super::discovery::ServerAddress;
-use super::{Env, HostTensor, MakeOptions, ResetResult, StepResult};
-use crate::error::{EnvError, StatusKind};
-use crate::spec::{EnvInfo, EnvSpec, ServerVersion};
+use crate::error::EnvError;
+use crate::spec::{EnvInfo, ServerVersion};
 
 /// Largest message the client sends or accepts.
 const MAX_MESSAGE_BYTES: usize = 256 << 20;
@@ -42,6 +43,7 @@ pub struct EnvClient {
     client: Stub,
     address: String,
     retry: RetryPolicy,
+    deadlines: DeadlineConfig,
 }
 
 impl EnvClient {
@@ -67,15 +69,25 @@ impl EnvClient {
         credentials: &Credentials,
         retry: RetryPolicy,
     ) -> Result<Self, EnvError> {
-        Self::connect_to(&ServerAddress::plain(address), credentials, retry).await
+        let deadlines = DeadlineConfig::default();
+        Self::connect_to(
+            &ServerAddress::plain(address),
+            credentials,
+            retry,
+            deadlines,
+        )
+        .await
     }
 
     /// Connect to a server found by discovery: `server.dial` is dialled and, over TLS,
-    /// the certificate must carry `server.tls_name` when set.
+    /// the certificate must carry `server.tls_name` when set. Calls then wait as
+    /// `deadlines` say; a connection not set up within their floor is given up (not
+    /// retried: the caller may have other servers).
     pub async fn connect_to(
         server: &ServerAddress,
         credentials: &Credentials,
         retry: RetryPolicy,
+        deadlines: DeadlineConfig,
     ) -> Result<Self, EnvError> {
         let address = server.to_string();
         let connect_error = |reason: String| EnvError::Connect {
@@ -87,7 +99,11 @@ impl EnvClient {
         let bearer = Bearer::new(credentials.token.as_deref()).map_err(connect_error)?;
         let mut attempt = 0;
         let channel = loop {
-            match endpoint.connect().await {
+            let connected = tokio::time::timeout(deadlines.floor(), endpoint.connect()).await;
+            let Ok(connected) = connected else {
+                return Err(missed(&address, "connect", deadlines.floor()));
+            };
+            match connected {
                 Ok(channel) => break channel,
                 Err(e) if channel::is_permanent(&e) => {
                     return Err(connect_error(format!(
@@ -116,6 +132,7 @@ impl EnvClient {
             client,
             address,
             retry,
+            deadlines,
         })
     }
 
@@ -132,10 +149,26 @@ impl EnvClient {
         }
     }
 
-    /// Run one unary call, retrying only UNAVAILABLE with backoff.
+    /// The same channel, its calls waiting as `deadlines` say.
+    pub fn with_deadlines(&self, deadlines: DeadlineConfig) -> Self {
+        Self {
+            deadlines,
+            ..self.clone()
+        }
+    }
+
+    /// How long this client's calls wait.
+    pub fn deadlines(&self) -> &DeadlineConfig {
+        &self.deadlines
+    }
+
+    /// Run one unary call, each attempt bounded by `deadline`, retrying only
+    /// UNAVAILABLE with backoff (a missed deadline is not retried here: the actor's
+    /// session restart decides where to go next).
     async fn call<Req, Resp, F, Fut>(
         &self,
         name: &'static str,
+        deadline: Duration,
         request: Req,
         mut f: F,
     ) -> Result<Resp, EnvError>
@@ -146,7 +179,11 @@ impl EnvClient {
     {
         let mut attempt = 0;
         loop {
-            match f(self.client.clone(), request.clone()).await {
+            let answer = tokio::time::timeout(deadline, f(self.client.clone(), request.clone()));
+            let Ok(answer) = answer.await else {
+                return Err(missed(&self.address, name, deadline));
+            };
+            match answer {
                 Ok(response) => return Ok(response.into_inner()),
                 Err(status) if is_unavailable(&status) && attempt + 1 < self.retry.max_attempts => {
                     tracing::warn!(
@@ -168,6 +205,7 @@ impl EnvClient {
         let r = self
             .call(
                 "GetVersion",
+                self.deadlines.floor(),
                 pb::GetVersionRequest {},
                 |mut c, r| async move { c.get_version(r).await },
             )
@@ -183,9 +221,12 @@ impl EnvClient {
     /// Every env the server ships, with its objectives.
     pub async fn list_envs(&self) -> Result<Vec<EnvInfo>, EnvError> {
         let r = self
-            .call("ListEnvs", pb::ListEnvsRequest {}, |mut c, r| async move {
-                c.list_envs(r).await
-            })
+            .call(
+                "ListEnvs",
+                self.deadlines.floor(),
+                pb::ListEnvsRequest {},
+                |mut c, r| async move { c.list_envs(r).await },
+            )
             .await?;
         Ok(r.envs
             .into_iter()
@@ -221,183 +262,39 @@ impl EnvClient {
                 got: options.num_workers.to_string(),
             })?,
         };
+        let started = Instant::now();
         let r = self
-            .call("Make", request, |mut c, r| async move { c.make(r).await })
+            .call(
+                "Make",
+                self.deadlines.ceiling(),
+                request,
+                |mut c, r| async move { c.make(r).await },
+            )
             .await?;
+        let times = CallTimes::after_make(started.elapsed());
         let spec = spec_from_proto(r.spec.ok_or_else(|| missing("MakeResponse.spec"))?)?;
-        Ok(RemoteEnv {
-            client: self.clone(),
-            session_id: r.session_id,
+        Ok(RemoteEnv::new(
+            self.clone(),
+            r.session_id,
             spec,
-            lease_seconds: r.lease_seconds,
-            stream: StreamState::Unary,
-        })
+            r.lease_seconds,
+            times,
+        ))
     }
 }
 
-/// A session on a server: B instances stepped together.
-#[derive(Debug)]
-pub struct RemoteEnv {
-    client: EnvClient,
-    session_id: String,
-    spec: EnvSpec,
-    lease_seconds: f64,
-    stream: StreamState,
-}
-
-/// How steps travel: unary calls, or one bidirectional stream.
-#[derive(Debug)]
-#[allow(
-    clippy::large_enum_variant,
-    reason = "one per session, replaced rarely; boxing buys nothing"
-)]
-enum StreamState {
-    /// One unary `Step` call per step.
-    Unary,
-    /// Streaming chosen; the call opens with the next step.
-    Idle,
-    /// An open `StepStream` call.
-    Open {
-        requests: mpsc::Sender<pb::StepRequest>,
-        responses: tonic::Streaming<pb::StepResponse>,
-    },
-}
-
-impl RemoteEnv {
-    /// Server-side session id.
-    pub fn session_id(&self) -> &str {
-        &self.session_id
-    }
-
-    /// Idle time after which the server closes the session.
-    pub fn lease_seconds(&self) -> f64 {
-        self.lease_seconds
-    }
-
-    /// Send subsequent steps over one bidirectional stream instead of unary calls.
-    /// The server closes the session if the stream breaks.
-    pub fn use_stream(&mut self) {
-        if matches!(self.stream, StreamState::Unary) {
-            self.stream = StreamState::Idle;
-        }
-    }
-
-    async fn step_streamed(
-        &mut self,
-        request: pb::StepRequest,
-    ) -> Result<pb::StepResponse, EnvError> {
-        let stream_closed = || EnvError::Status {
-            call: "StepStream",
-            code: StatusKind::Unavailable,
-            message: "stream closed by the server".into(),
-        };
-        if let StreamState::Open { requests, .. } = &self.stream {
-            if requests.send(request).await.is_err() {
-                self.stream = StreamState::Idle;
-                return Err(stream_closed());
-            }
-        } else {
-            // Queue the first request before opening the call: the server sends
-            // its response headers only with its first message.
-            let (requests, rx) = mpsc::channel(2);
-            requests.send(request).await.map_err(|_| stream_closed())?;
-            let mut client = self.client.client.clone();
-            let responses = client
-                .step_stream(ReceiverStream::new(rx))
-                .await
-                .map_err(|s| status_error("StepStream", &s))?
-                .into_inner();
-            self.stream = StreamState::Open {
-                requests,
-                responses,
-            };
-        }
-        let StreamState::Open { responses, .. } = &mut self.stream else {
-            unreachable!("opened above")
-        };
-        let outcome = responses.message().await;
-        match outcome {
-            Ok(Some(response)) => Ok(response),
-            Ok(None) => {
-                self.stream = StreamState::Idle;
-                Err(stream_closed())
-            }
-            Err(status) => {
-                // The call is over; the next step opens a fresh stream.
-                self.stream = StreamState::Idle;
-                Err(status_error("StepStream", &status))
-            }
-        }
-    }
-}
-
-impl Env for RemoteEnv {
-    fn spec(&self) -> &EnvSpec {
-        &self.spec
-    }
-
-    async fn reset(
-        &mut self,
-        env_indices: &[usize],
-        seeds: &[u64],
-    ) -> Result<ResetResult, EnvError> {
-        let request = pb::ResetRequest {
-            session_id: self.session_id.clone(),
-            env_indices: env_indices.iter().map(|&i| i as i32).collect(),
-            seeds: seeds.to_vec(),
-        };
-        let r = self
-            .client
-            .call("Reset", request, |mut c, r| async move { c.reset(r).await })
-            .await?;
-        Ok(ResetResult {
-            observation: observation_from_proto(r.observation)?,
-            info: named_from_proto(r.info)?,
-        })
-    }
-
-    async fn step(&mut self, action: &HostTensor) -> Result<StepResult, EnvError> {
-        let request = pb::StepRequest {
-            session_id: self.session_id.clone(),
-            action: Some(tensor_to_proto(action)),
-        };
-        let r = if !matches!(self.stream, StreamState::Unary) {
-            self.step_streamed(request).await?
-        } else {
-            self.client
-                .call("Step", request, |mut c, r| async move { c.step(r).await })
-                .await?
-        };
-        step_from_proto(r, self.spec.num_envs, self.spec.num_objectives())
-    }
-
-    async fn close(self) -> Result<(), EnvError> {
-        // Close before the stream (if any) is dropped here: the server also closes a
-        // stream's sessions when the stream ends, and Close must not race that.
-        let request = pb::CloseRequest {
-            session_id: self.session_id.clone(),
-        };
-        let closed = self
-            .client
-            .call("CloseSession", request.clone(), |mut c, r| async move {
-                c.close_session(r).await
-            })
-            .await;
-        match closed {
-            // A server from before CloseSession knows the call only by its old name.
-            Err(EnvError::Status {
-                code: StatusKind::Unimplemented,
-                ..
-            }) => {
-                #[allow(deprecated, reason = "the fallback for servers without CloseSession")]
-                self.client
-                    .call("Close", request, |mut c, r| async move { c.close(r).await })
-                    .await?;
-            }
-            closed => {
-                closed?;
-            }
-        }
-        Ok(())
+/// The error of a call to `server` that got no answer within `waited`, logged where it
+/// happens with the server, the call and the time waited.
+fn missed(server: &str, call: &'static str, waited: Duration) -> EnvError {
+    tracing::warn!(
+        server,
+        call,
+        waited_s = waited.as_secs_f64(),
+        "env server gave no answer within the deadline"
+    );
+    EnvError::Deadline {
+        call,
+        server: server.to_string(),
+        waited,
     }
 }

@@ -23,6 +23,7 @@ impl RemoteEnv {
             .client
             .call(
                 "Render",
+                self.client.deadlines.ceiling(),
                 request,
                 |mut c, r| async move { c.render(r).await },
             )

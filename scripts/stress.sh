@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Runs end-to-end test binaries N times and reports every failure: a flake shows as a
+# FAIL line with its log. Usage:
+#   scripts/stress.sh N [TEST ...]
+# TEST is a test binary of the integration-tests crate (tests/tests/NAME.rs), or
+# PACKAGE:NAME for another crate's (agent:ray); default: every integration-tests binary.
+# Each binary runs its tests side by side, as `cargo test` does. Logs go to
+# stress-logs/<time>/<test>-<i>.log. Run it beside a training run to test under load.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+n=${1:?usage: scripts/stress.sh N [TEST ...]}
+shift
+tests=("$@")
+if [ ${#tests[@]} -eq 0 ]; then
+  for f in tests/tests/*.rs; do tests+=("$(basename "$f" .rs)"); done
+fi
+packages=(-p integration-tests)
+for t in "${tests[@]}"; do
+  if [[ $t == *:* ]]; then packages+=(-p "${t%%:*}"); fi
+done
+cargo test --locked -q "${packages[@]}" --no-run
+logs=stress-logs/$(date +%Y%m%d-%H%M%S)
+mkdir -p "$logs"
+failures=0
+for i in $(seq 1 "$n"); do
+  for t in "${tests[@]}"; do
+    package=integration-tests name=$t
+    if [[ $t == *:* ]]; then package=${t%%:*} name=${t#*:}; fi
+    log="$logs/$name-$i.log"
+    started=$(date +%s)
+    if cargo test --locked -q -p "$package" --test "$name" >"$log" 2>&1; then
+      echo "round $i/$n  $package:$name  pass  $(($(date +%s) - started)) s"
+    else
+      failures=$((failures + 1))
+      echo "round $i/$n  $package:$name  FAIL  $(($(date +%s) - started)) s  (see $log)"
+    fi
+  done
+done
+echo "$failures failure(s) in $n round(s) of ${#tests[@]} binaries; logs in $logs"
+[ "$failures" -eq 0 ]
