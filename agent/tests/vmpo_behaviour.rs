@@ -72,8 +72,14 @@ fn the_larger_epsilon_pulls_the_policy_to_its_objective() {
     // 0.991, 0.987, 0.990), left -0.990 (-0.992, -0.980, -0.987, -0.983, -0.993),
     // equal -0.55 (-0.38, -0.13, 0.03, -0.09, -0.09). Under the rule before issue 38
     // (`per_objective`) the lean was 0.16 / -0.13 around 0.02.
-    assert!(right > 0.9, "eps_right = 10 eps_left: expected about +1, got {right}");
-    assert!(left < -0.9, "eps_left = 10 eps_right: expected about -1, got {left}");
+    assert!(
+        right > 0.9,
+        "eps_right = 10 eps_left: expected about +1, got {right}"
+    );
+    assert!(
+        left < -0.9,
+        "eps_left = 10 eps_right: expected about -1, got {left}"
+    );
     assert!(
         left < equal && equal < right,
         "equal epsilons {equal} should lie between {left} and {right}"
@@ -200,7 +206,12 @@ fn a_projected_step_of_several_updates_ends_within_beta() {
     let free = step_end_kls(false, 20);
     let over = |kls: &[Vec<f32>]| {
         kls.iter()
-            .map(|kl| kl.iter().zip(&betas).map(|(k, b)| k / b).fold(0.0, f32::max))
+            .map(|kl| {
+                kl.iter()
+                    .zip(&betas)
+                    .map(|(k, b)| k / b)
+                    .fold(0.0, f32::max)
+            })
             .fold(0.0, f32::max)
     };
     // Without the projection the 16 updates of a step end far past beta. The largest
@@ -209,7 +220,10 @@ fn a_projected_step_of_several_updates_ends_within_beta() {
     // (0.91, 0.96, 0.93, 1.00, 0.90) with it.
     assert!(over(&free) > 1.5, "the passes never outran beta: {free:?}");
     let bound = step_end_kls(true, 20);
-    assert!(over(&bound) <= 1.0 + 1e-4, "a projected step ended past beta: {bound:?}");
+    assert!(
+        over(&bound) <= 1.0 + 1e-4,
+        "a projected step ended past beta: {bound:?}"
+    );
     // The projection does not just undo the steps: some still move the mean by more
     // than a tenth of beta_mu (measured: 12 of the 20 steps; 14, 1, 15, 5, 11).
     let moved = bound.iter().filter(|kl| kl[0] > 0.1 * betas[0]).count();
