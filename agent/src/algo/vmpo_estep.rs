@@ -184,7 +184,7 @@ mod tests {
     /// with `conflict`, column 1 is mostly -column 0 (objectives in conflict).
     fn advantages(seed: u64, n: i64, scales: &[f64], conflict: bool) -> Tensor {
         let k = scales.len() as i64;
-        let mut a = StreamKey::new(seed, Purpose::LearnerNoise, 7)
+        let a = StreamKey::new(seed, Purpose::LearnerNoise, 7)
             .at(0)
             .normal(&[n, k], Device::Cpu);
         if conflict {
@@ -315,7 +315,7 @@ mod tests {
         // do not depend on A_0 at all (joint and shared); per_objective's stay apart.
         for rule in [TopK::Joint, TopK::Shared, TopK::PerObjective] {
             let off = values(&step(&a, &eligible, &[1.0, 0.5], &[0.0, 0.1], rule).fit_weights);
-            let mut shuffled = a.copy();
+            let shuffled = a.copy();
             shuffled.select(1, 0).copy_(&a.select(1, 0).flip([0]));
             let other =
                 values(&step(&shuffled, &eligible, &[1.0, 0.5], &[0.0, 0.1], rule).fit_weights);
