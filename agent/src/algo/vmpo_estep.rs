@@ -339,6 +339,7 @@ mod tests {
                         .sum()
                 })
                 .collect();
+            eprintln!("{rule:?}: L1 distance to eps_0 = 0 at eta_0 = 1 .. 1e5: {distance:?}");
             if rule == TopK::PerObjective {
                 assert!(distance.iter().all(|&d| d > 0.5), "{rule:?}: {distance:?}");
             } else {
@@ -413,6 +414,7 @@ mod tests {
             let fall = shared.windows(2).map(|w| w[0] - w[1]).fold(0.0, f64::max);
             shared_falls = shared_falls.max(fall);
         }
+        eprintln!("shared: largest fall of the mean A_0 along lambda_0: {shared_falls:.4}");
         assert!(shared_falls > 1e-3, "shared never fell: {shared_falls}");
     }
 }

@@ -9,10 +9,11 @@
 //! `theta(t) = theta_start + t (theta_end - theta_start)`, as TRPO's line search does:
 //! near t = 0 the KL grows as t^2, so each trial takes `t <- 0.9 t sqrt(1 / r)`
 //! (r the largest ratio KL / beta, the factor kept in [0.1, 0.9]) until every part is
-//! within its beta, and after `TRIALS` trials the step's start. The start satisfies
-//! the bound whenever the previous step did (or pi_old was just copied), so a run
-//! with the projection on keeps every step's end within beta. Adam's moments are
-//! left as the updates made them.
+//! within its beta, and after `TRIALS` trials the step's start. The start is pi_old
+//! itself when pi_old is renewed every learner step (`target_update_period = 1`, as
+//! in the presets that reuse batches), so then every step ends within beta; with a
+//! longer period the start was checked at the previous batch's states only. Adam's
+//! moments are left as the updates made them.
 //!
 //! Shape legend: P members, R real states, D action dims, A actions.
 
