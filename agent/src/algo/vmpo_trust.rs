@@ -21,7 +21,7 @@ use super::estep::StateMean;
 use super::mstep::{KlConstraint, decoupled_kl};
 use super::real_states::{RealStates, gather_states, real_rows};
 use super::state::Learner;
-use crate::nets::PolicyOutput;
+use crate::nets::{GaussianParams, PolicyOutput};
 use crate::random::{Purpose, StreamKey};
 use tch::{Kind, Tensor};
 
@@ -74,42 +74,52 @@ impl Learner {
     }
 
     /// KL(pi_old || pi) at the states `obs [P, R, obs]`: the reported parts `[P,
-    /// parts]` and the largest ratio KL / beta of each member `[P]`.
+    /// parts]` and the largest ratio KL / beta of each member `[P]`. In f64: KL_Sigma
+    /// near beta_Sigma = 1e-5 is a difference of terms near 1/2, which f32 gets only
+    /// to about 1e-3 relative, and the projection compares it with beta.
     fn step_kl(&self, obs: &Tensor, noise: Option<&Tensor>, real: &RealStates) -> (Tensor, Tensor) {
         let s = &self.settings;
         let mean = StateMean::Members(&real.weight);
+        let wide = |g: GaussianParams| GaussianParams {
+            mean: g.mean.to_kind(Kind::Double),
+            std: g.std.to_kind(Kind::Double),
+        };
         tch::no_grad(|| {
             let target = self.target_policy.forward_members(obs, noise);
             match (self.policy.forward_members(obs, noise), target) {
                 (PolicyOutput::Gaussian(online), PolicyOutput::Gaussian(target)) => {
-                    let kl = decoupled_kl(&online, &target);
-                    let parts = [(kl.mean, s.beta_mean), (kl.cov, s.beta_cov)].map(|(kl, beta)| {
+                    let kl = decoupled_kl(&wide(online), &wide(target));
+                    let part = |kl: Tensor, beta: f64| {
                         let per_dim = mean.over_states(&kl);
                         let (reported, bounded) = match s.kl_constraint {
                             KlConstraint::Summed => {
-                                let total = per_dim.sum_dim_intlist(-1, false, Kind::Float);
+                                let total = per_dim.sum_dim_intlist(-1, false, Kind::Double);
                                 (total.shallow_clone(), total)
                             }
                             KlConstraint::PerDimension => (
-                                per_dim.mean_dim(-1, false, Kind::Float),
+                                per_dim.mean_dim(-1, false, Kind::Double),
                                 per_dim.amax([-1i64].as_slice(), false),
                             ),
                         };
                         (reported, bounded / beta)
-                    });
-                    let [(mean_kl, mean_ratio), (cov_kl, cov_ratio)] = parts;
+                    };
+                    let (mean_kl, mean_ratio) = part(kl.mean, s.beta_mean);
+                    let (cov_kl, cov_ratio) = part(kl.cov, s.beta_cov);
                     (
-                        Tensor::stack(&[mean_kl, cov_kl], -1),
+                        Tensor::stack(&[mean_kl, cov_kl], -1).to_kind(Kind::Float),
                         mean_ratio.maximum(&cov_ratio),
                     )
                 }
                 (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
-                    let old = target.log_softmax(-1, Kind::Float);
-                    let new = online.log_softmax(-1, Kind::Float);
+                    let old = target.to_kind(Kind::Double).log_softmax(-1, Kind::Double);
+                    let new = online.to_kind(Kind::Double).log_softmax(-1, Kind::Double);
                     let per_state =
-                        (old.exp() * (&old - new)).sum_dim_intlist(-1, false, Kind::Float);
+                        (old.exp() * (&old - new)).sum_dim_intlist(-1, false, Kind::Double);
                     let kl = mean.over_state_rows(&per_state);
-                    (kl.unsqueeze(-1), kl / s.beta_categorical)
+                    (
+                        kl.unsqueeze(-1).to_kind(Kind::Float),
+                        kl / s.beta_categorical,
+                    )
                 }
                 _ => unreachable!("online and target policies have the same kind"),
             }
