@@ -10,16 +10,22 @@
 mod common;
 
 use agent::algo::{Learner, SnippetBatch};
-use agent::config::Algorithm;
+use agent::config::{Algorithm, LearnerConfig};
 use tch::{Device, Kind, Tensor};
 
 const UNROLLS: i64 = 64;
 
-fn bandit(eps: [f64; 2]) -> Learner {
+/// The bandit's MO-V-MPO config: one-step unrolls, `UNROLLS` of them per batch.
+fn bandit_config(eps: [f64; 2], learning_rate: f64) -> LearnerConfig {
     let mut cfg = common::bandit_config(Algorithm::MoVmpo, eps, vec![16], 3);
     cfg.vmpo.unroll_length = 1;
     cfg.vmpo.batch_size = UNROLLS as usize;
-    cfg.vmpo.learning_rate = 3e-3;
+    cfg.vmpo.learning_rate = learning_rate;
+    cfg
+}
+
+fn bandit(eps: [f64; 2]) -> Learner {
+    let mut cfg = bandit_config(eps, 3e-3);
     cfg.vmpo.dual_learning_rate = 0.1;
     cfg.vmpo.beta_mean = 0.01;
     cfg.vmpo.target_update_period = 10;
@@ -101,10 +107,7 @@ fn a_zero_epsilon_objective_has_no_influence() {
 /// projection is off: it would cut a step of two passes and not two steps of one
 /// (it has its own test below).
 fn bandit_passes(epochs: usize, minibatches: usize) -> Learner {
-    let mut cfg = common::bandit_config(Algorithm::MoVmpo, [0.1, 0.05], vec![16], 3);
-    cfg.vmpo.unroll_length = 1;
-    cfg.vmpo.batch_size = UNROLLS as usize;
-    cfg.vmpo.learning_rate = 3e-3;
+    let mut cfg = bandit_config([0.1, 0.05], 3e-3);
     cfg.vmpo.target_update_period = 1000;
     cfg.vmpo.epochs = epochs;
     cfg.vmpo.minibatches = minibatches;
@@ -180,10 +183,7 @@ fn minibatches_split_the_batch_into_seeded_shuffled_updates() {
 /// 8 passes over 2 minibatches, pi_old renewed every step, with a learning rate at
 /// which the passes outrun the multipliers.
 fn step_end_kls(project: bool, steps: usize) -> Vec<Vec<f32>> {
-    let mut cfg = common::bandit_config(Algorithm::MoVmpo, [0.1, 0.05], vec![16], 3);
-    cfg.vmpo.unroll_length = 1;
-    cfg.vmpo.batch_size = UNROLLS as usize;
-    cfg.vmpo.learning_rate = 3e-2;
+    let mut cfg = bandit_config([0.1, 0.05], 3e-2);
     cfg.vmpo.target_update_period = 1;
     cfg.vmpo.epochs = 8;
     cfg.vmpo.minibatches = 2;
