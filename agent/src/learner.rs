@@ -74,7 +74,8 @@ pub struct LearnerRecord {
     /// Lagrange multipliers (alpha_mu, alpha_Sigma) or (alpha); with a per-dimension
     /// KL constraint, the mean over action dimensions of each.
     pub alpha: Vec<f32>,
-    /// KL(pi_old || pi) parts before the update; with a per-dimension KL constraint,
+    /// KL(pi_old || pi) parts before the update (at the end of a V-MPO step of several
+    /// updates); with a per-dimension KL constraint,
     /// the mean over action dimensions of each (`LearnerStats::policy_kl`).
     pub policy_kl: Vec<f32>,
     /// The fraction of its M-step the policy kept after the trust region's projection

@@ -12,10 +12,11 @@
 mod compare;
 
 use agent::algo::dual::positive;
-use agent::algo::estep::{advantage_estep, exact_estep, sampled_estep};
+use agent::algo::estep::{exact_estep, sampled_estep};
 use agent::algo::movmpo::{UnrollTargetInputs, unroll_targets};
 use agent::algo::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
 use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
+use agent::algo::vmpo_estep::{StepOneInputs, TopK, advantage_estep};
 use agent::algo::{Learner, LearnerDims, NoiseSource, SnippetBatch};
 use agent::config::LearnerConfig;
 use agent::nets::GaussianParams;
@@ -221,34 +222,51 @@ fn retrace_targets_with_terminal_and_truncated_traces() {
 }
 
 #[test]
-fn vmpo_top_k_weights_temperature_loss_and_kl() {
+fn vmpo_top_k_weights_temperature_loss_and_kl_under_every_rule() {
     let g = golden("vmpo_estep");
-    let param = vector(&g["temperature_param"]).set_requires_grad(true);
-    let out = advantage_estep(
-        &tensor(&g["advantages"]),
-        &vector(&g["eligible"]),
-        &positive(&param),
-        &vector(&g["epsilon"]),
-        scalar(&g["fraction"]),
-    );
-    assert_close(
-        &out.selected,
-        &tensor(&g["selected"]),
-        "top-k selection (ties in, ineligible out)",
-    );
-    assert_close(&out.weights, &tensor(&g["weights"]), "weights");
-    assert_close(&out.kl, &vector(&g["kl"]), "KL(q_k || p_old)");
-    assert_close_scalar(
-        out.temperature_loss.double_value(&[]),
-        scalar(&g["temperature_loss"]),
-        "eq. 24 loss",
-    );
-    out.temperature_loss.backward();
-    assert_close(
-        &param.grad(),
-        &vector(&g["grad_temperature_param"]),
-        "d loss / d eta param",
-    );
+    for (name, rule) in [
+        ("joint", TopK::Joint),
+        ("shared", TopK::Shared),
+        ("per_objective", TopK::PerObjective),
+        ("duals_only", TopK::DualsOnly),
+    ] {
+        let want = &g["rules"][name];
+        let param = vector(&g["temperature_param"]).set_requires_grad(true);
+        let out = advantage_estep(&StepOneInputs {
+            advantages: &tensor(&g["advantages"]),
+            eligible: &vector(&g["eligible"]),
+            temperature: &positive(&param),
+            epsilon: &vector(&g["epsilon"]),
+            fraction: scalar(&g["fraction"]),
+            rule,
+        });
+        assert_close(
+            &out.selected,
+            &tensor(&want["selected"]),
+            &format!("{name}: top-k selection (ties in, ineligible out)"),
+        );
+        assert_close(
+            &out.fit_weights,
+            &vector(&want["fit_weights"]),
+            &format!("{name}: fit weights"),
+        );
+        assert_close(
+            &out.kl,
+            &vector(&want["kl"]),
+            &format!("{name}: KL(q_k || p_old)"),
+        );
+        assert_close_scalar(
+            out.temperature_loss.double_value(&[]),
+            scalar(&want["temperature_loss"]),
+            &format!("{name}: eq. 24 loss"),
+        );
+        out.temperature_loss.backward();
+        assert_close(
+            &param.grad(),
+            &vector(&want["grad_temperature_param"]),
+            &format!("{name}: d loss / d eta param"),
+        );
+    }
 }
 
 #[test]

@@ -17,28 +17,14 @@
 //! `eps_k = 0` is the limit eta_k -> infinity: q_k is pi_old itself (uniform weights
 //! over the samples, the prior for the exact case) and eta_k gets no gradient.
 //!
-//! **MO-V-MPO's step 1** (appendix D.2.1, eqs. 22-24), `advantage_estep`: with one
-//! action per state, q_k is a distribution over the batch's (s, a) pairs. Per
-//! objective, only the top `fraction` of the eligible advantages are kept (Song et al.
-//! 2020; rlax `get_top_k_weights`): with n eligible pairs, k = max(1, floor(fraction n)),
-//! the threshold is the k-th largest A_k, and every eligible pair with A_k >= threshold
-//! is selected (ties can admit more than k). Ineligible pairs (padding after an
-//! episode's end, and episode starts where a caller's unrolls cross episodes) are never
-//! selected. Over the selected set S_k,
-//! `w_ki = exp(A_ki/eta_k - m_k) / sum_{j in S_k} exp(A_kj/eta_k - m_k)`, with
-//! `m_k = sg(max_{S_k} A_k/eta_k)`, and the temperature dual of eq. 24 is
-//! `g(eta_k) = eta_k (eps_k + log mean_{S_k} exp(A_k/eta_k))`
-//! `         = eta_k (eps_k + m_k + log sum_{S_k} exp(A_k/eta_k - m_k) - log |S_k|)`.
-//! `eps_k = 0` gives uniform weights over all eligible pairs (q_k = p_old, no
-//! influence) and no dual gradient.
+//! MO-V-MPO's step 1 (appendix D.2.1) is `vmpo_estep.rs`.
 //!
 //! **Populations** (`StateMean::Members`): P members' E-steps at once, every tensor
 //! member-first (`q [P, M, B, K]`, `temperature`, `epsilon [P, 1, K]`); each member's
 //! dual averages over its own real states with the given state weights, so the loss
 //! is the sum of the P members' losses and each eta gets exactly its member's gradient.
 //!
-//! Shape legend: P members, M samples (or A actions), B states, N (s, a) pairs, K
-//! objectives.
+//! Shape legend: P members, M samples (or A actions), B states, K objectives.
 
 use tch::{Kind, Tensor};
 
@@ -209,107 +195,10 @@ pub fn exact_estep_with(
     }
 }
 
-/// Result of MO-V-MPO's step 1 for all objectives.
-#[derive(Debug)]
-pub struct AdvantageEStepOutput {
-    /// `[.., N, K]`, no gradient: w_ki, summing to 1 over N per member and objective.
-    pub weights: Tensor,
-    /// `[.., N, K]` f32 in {0, 1}: the top-k selection.
-    pub selected: Tensor,
-    /// Scalar: sum over members and objectives with eps_k > 0 of g(eta_k); gradient
-    /// only with respect to `temperature`.
-    pub temperature_loss: Tensor,
-    /// `[.., K]`, no gradient: realised KL(q_k || p_old) with p_old uniform over the
-    /// eligible pairs.
-    pub kl: Tensor,
-}
-
-/// The top-`fraction` selection per member and objective among its eligible pairs.
-/// k is computed on the device (in f64, as `floor(fraction * n)` on the host would
-/// be), and the threshold is the k-th value of a descending sort: the k-th largest,
-/// with no host read and one k per member.
-/// # Shapes
-/// `advantages [.., N, K]`, `eligible [.., N]` f32 in {0, 1} (at least one 1 per
-/// member) `-> [.., N, K]` f32.
-pub fn top_k_mask(advantages: &Tensor, eligible: &Tensor, fraction: f64) -> Tensor {
-    let n_eligible = eligible.sum_dim_intlist(-1, true, Kind::Double);
-    let k = (n_eligible * fraction)
-        .floor()
-        .clamp_min(1.0)
-        .to_kind(Kind::Int64);
-    let is_eligible = eligible.gt(0.5).unsqueeze(-1);
-    let masked = advantages
-        .detach()
-        .masked_fill(&is_eligible.logical_not(), f64::NEG_INFINITY);
-    let (sorted, _) = masked.sort(-2, true);
-    let columns = *advantages.size().last().expect("[.., N, K]");
-    let mut at = (k - 1).unsqueeze(-1);
-    let mut shape = at.size();
-    *shape.last_mut().expect("[.., 1, 1]") = columns;
-    at = at.expand(shape.as_slice(), false);
-    let threshold = sorted.gather(-2, &at, false);
-    masked
-        .ge_tensor(&threshold)
-        .logical_and(&is_eligible)
-        .to_kind(Kind::Float)
-}
-
-/// MO-V-MPO step 1 (see module docs), for one learner or a population's members at
-/// once (each member's selection, weights and dual over its own pairs).
-/// # Shapes
-/// `advantages [.., N, K]` (no gradient needed), `eligible [.., N]`, `temperature`
-/// and `epsilon [K]` or `[P, 1, K]` (positive, may require grad).
-pub fn advantage_estep(
-    advantages: &Tensor,
-    eligible: &Tensor,
-    temperature: &Tensor,
-    epsilon: &Tensor,
-    fraction: f64,
-) -> AdvantageEStepOutput {
-    let active = active_mask(epsilon);
-    let eligible = eligible.detach().to_kind(Kind::Float);
-    let selected = top_k_mask(advantages, &eligible, fraction);
-    let scaled = advantages.detach() / temperature;
-    let floor = Tensor::full_like(&scaled, f64::NEG_INFINITY);
-    let kept = scaled.where_self(&selected.gt(0.5), &floor);
-    let over_pairs = [-2i64];
-    let max = kept.detach().amax(over_pairs.as_slice(), true);
-    let log_sum = (&kept - &max).logsumexp(over_pairs.as_slice(), true);
-    let count = selected.sum_dim_intlist(-2, true, Kind::Float);
-    let log_mean_exp = log_sum + max - count.log();
-    let dual = temperature * (epsilon + log_mean_exp);
-    let temperature_loss = (dual * &active).sum(Kind::Float);
-    let softmax = kept.detach().softmax(-2, Kind::Float);
-    let n_eligible = eligible.sum_dim_intlist(-1, true, Kind::Float);
-    let uniform = (&eligible / &n_eligible).unsqueeze(-1);
-    let weights: Tensor = &softmax * &active + uniform * (1.0 - &active);
-    let kl = (&weights * (&weights * n_eligible.unsqueeze(-1)).clamp_min(1e-30).log())
-        .sum_dim_intlist(-2, false, Kind::Float);
-    AdvantageEStepOutput {
-        weights,
-        selected,
-        temperature_loss,
-        kl,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use tch::Device;
-
-    #[test]
-    fn top_k_keeps_ties_and_skips_ineligible_pairs() {
-        // Column 0: eligible values 3, 1, 1, 0 (the 9 is ineligible): k = 2, threshold 1,
-        // so both tied 1s are kept. Column 1: the top 2 eligible are 5 and 4.
-        let a = Tensor::from_slice(&[9.0f32, 0.0, 3.0, 5.0, 1.0, 4.0, 1.0, -1.0, 0.0, 2.0])
-            .reshape([5, 2]);
-        let eligible = Tensor::from_slice(&[0.0f32, 1.0, 1.0, 1.0, 1.0]);
-        let mask = top_k_mask(&a, &eligible, 0.5);
-        let want = Tensor::from_slice(&[0.0f32, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
-            .reshape([5, 2]);
-        assert!(mask.equal(&want), "{mask}");
-    }
 
     #[test]
     fn huge_q_over_small_eta_stays_finite() {

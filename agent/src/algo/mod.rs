@@ -1,7 +1,7 @@
 //! MO-MPO and scalarized MPO (Abdolmaleki et al. 2020, appendix C, Algorithm 3):
 //! policy evaluation with Retrace, per-objective E-steps, one decoupled M-step; and
-//! MO-V-MPO and scalarized V-MPO (appendix D): T-step value targets, per-objective
-//! top-k advantage weights, the same decoupled policy fit. One `Learner` (`state.rs`)
+//! MO-V-MPO and scalarized V-MPO (appendix D): T-step value targets, top-k advantage
+//! weights, the same decoupled policy fit. One `Learner` (`state.rs`)
 //! runs all four. Pure library code: no tokio, tonic or proto types.
 //!
 //! Shape legend: B batch, M sampled actions, D action dims, K objectives,
@@ -26,6 +26,8 @@ pub mod retrace;
 pub mod state;
 pub mod stats;
 pub mod update;
+pub mod vmpo_estep;
+mod vmpo_trust;
 
 pub use batch::{BatchError, SnippetBatch};
 pub use noise::{NoiseError, NoiseSource};

@@ -10,9 +10,9 @@
 //!    before padding (so a truncated episode bootstraps and a terminated one does not);
 //!    advantages `A = G - V` (no gradient); the critics are regressed on G (0.5 *
 //!    squared error, mean over real steps, summed over heads), one Adam step.
-//! 2. **Step 1** (D.2.1, eqs. 22-24) per objective on the N = TB pairs: top-k selection
-//!    among real steps, weights over the batch and the temperature duals
-//!    (`estep::advantage_estep`).
+//! 2. **Step 1** (D.2.1, eqs. 22-24) on the N = TB pairs: the top-k selection among
+//!    real steps (one for all objectives by default, `vmpo.top_k`), the fit's weights
+//!    and the temperature duals (`vmpo_estep::advantage_estep`).
 //! 3. **Step 2** (D.2.2, eq. 25): weighted maximum likelihood of the taken actions with
 //!    the decoupled trust region against pi_old, the target policy (Table 5 betas),
 //!    both over the real steps only (padding is never acted from);
@@ -23,9 +23,10 @@
 //! V-MPO uses each batch once (one update per learner step, the default). As an option
 //! of ours, `vmpo.epochs` passes over `vmpo.minibatches` shuffled subsets of the
 //! unrolls do steps 1-3 once per subset (PPO's reuse of on-policy data); all of a
-//! step's updates share pi_old, so the trust region bounds how far they move the
-//! policy together, and the targets and advantages are recomputed with the current
-//! critic in every update.
+//! step's updates share pi_old, and the targets and advantages are recomputed with the
+//! current critic in every update. Each update's alpha bounds the KL only on average,
+//! so such a step ends with its KL measured and, with `vmpo.project_step_kl`, pulled
+//! back within beta (`vmpo_trust.rs`).
 //!
 //! **Populations**: every tensor is member-first (`[P, ..]`); each member's targets,
 //! top-k, duals and policy fit use its own unrolls and real steps (gathered to the
@@ -37,11 +38,12 @@
 //! discrete actions, K objectives, C critics.
 
 use super::batch::SnippetBatch;
-use super::estep::{StateMean, advantage_estep};
+use super::estep::StateMean;
 use super::objectives::QSource;
 use super::real_states::{gather_states, masked_half_mse, real_rows};
-use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since};
+use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
 use super::update::StepMeasures;
+use super::vmpo_estep::{StepOneInputs, advantage_estep};
 use crate::nets::PolicyOutput;
 use crate::random::{Purpose, StreamKey};
 use std::time::Instant;
@@ -102,6 +104,8 @@ impl Learner {
     ) -> Result<Vec<LearnerStats>, LearnerError> {
         let (epochs, parts) = (self.cfg.vmpo.epochs, self.cfg.vmpo.minibatches as i64);
         let (t_len, b) = (batches[0].len(), batches[0].batch_size());
+        let several = epochs as i64 * parts > 1;
+        let start = (several && self.cfg.vmpo.project_step_kl).then(|| self.policy_parameters());
         let mut measured: Option<StepMeasures> = None;
         for epoch in 0..epochs {
             let subsets: Vec<SnippetBatch> = if parts == 1 {
@@ -146,7 +150,26 @@ impl Learner {
                 });
             }
         }
-        self.finish_members(measured.expect("vmpo.epochs >= 1 is validated"))
+        let end = several.then(|| {
+            let whole = self.stack_batches(batches, t_len).0;
+            let p = self.members.count();
+            let obs = whole
+                .observations
+                .reshape([p, (t_len + 1) * b, -1])
+                .narrow(1, 0, t_len * b);
+            self.end_step(&obs, &whole.valid.reshape([p, -1]), start.as_ref())
+        });
+        let mut stats = self.finish_members(measured.expect("vmpo.epochs >= 1 is validated"))?;
+        // A step of several updates reports its policy KL at its end (after the
+        // projection), the number its beta bounds, rather than before its last update.
+        if let Some(end) = end {
+            let rows = to_vec(&end.kl);
+            let width = rows.len() / stats.len().max(1);
+            for (s, row) in stats.iter_mut().zip(rows.chunks(width.max(1))) {
+                s.policy_kl = row.to_vec();
+            }
+        }
+        Ok(stats)
     }
 
     /// One update (critic, step 1, step 2, duals) on the members' unrolls of `batch`
@@ -216,16 +239,17 @@ impl Learner {
             .collect();
         let objective_advantages = Tensor::stack(&columns, -1);
         let k = self.bound.objectives.len() as i64;
-        let estep = advantage_estep(
-            &objective_advantages,
-            &valid,
-            &self.duals.temperature().reshape([-1, 1, k]),
-            &self.epsilon.reshape([-1, 1, k]),
-            self.cfg.vmpo.top_k_fraction,
-        );
+        let estep = advantage_estep(&StepOneInputs {
+            advantages: &objective_advantages,
+            eligible: &valid,
+            temperature: &self.duals.temperature().reshape([-1, 1, k]),
+            epsilon: &self.epsilon.reshape([-1, 1, k]),
+            fraction: self.cfg.vmpo.top_k_fraction,
+            rule: self.cfg.vmpo.top_k,
+        });
         // Step 2 fits the policy, and bounds its KL, at each member's real steps only:
         // padding carries no weight and is never acted from.
-        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
+        let weights = estep.fit_weights;
         let taken = batch.actions.flatten(1, 2);
         let real = real_rows(&valid.gt(0.5));
         let (obs_real, taken, weights) = match &real.index {

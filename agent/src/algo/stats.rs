@@ -34,9 +34,11 @@ pub struct LearnerStats {
     /// has them all).
     pub alpha: Vec<f32>,
     /// (KL_mu, KL_Sigma) or (KL) between the target and online policy before the
-    /// update, averaged over states. Summed constraint: the KL of the whole Gaussian
-    /// (compare with beta); per-dimension constraint: the mean over the D dimensions
-    /// of each dimension's KL (also compared with beta; times D it is the summed KL).
+    /// update (a V-MPO step of several updates: at the step's end, after
+    /// `vmpo.project_step_kl`), averaged over states. Summed constraint: the KL of
+    /// the whole Gaussian (compare with beta); per-dimension constraint: the mean
+    /// over the D dimensions of each dimension's KL (also compared with beta; times D
+    /// it is the summed KL).
     pub policy_kl: Vec<f32>,
     /// The fraction of its M-step the policy kept after the trust region's projection
     /// (`mpo.max_kl_ratio`): 1 when the step stayed within (or no projection runs),

@@ -19,7 +19,7 @@ use error::{check, finite_pos};
 pub use mpo::MpoConfig;
 pub use network::{Architecture, NetworkConfig};
 pub use shared::{KlConstraint, MinAlpha, SharedSettings, TemperatureParameterization};
-pub use vmpo::VmpoConfig;
+pub use vmpo::{TopK, VmpoConfig};
 
 use serde::{Deserialize, Serialize};
 

@@ -7,6 +7,36 @@ use serde::{Deserialize, Serialize};
 use super::error::{check, finite_pos, non_negative};
 use super::{ConfigError, KlConstraint, TemperatureParameterization};
 
+/// Which (s, a) pairs step 1 keeps (D.2.1 "top-k advantages") and how the objectives'
+/// improved distributions become the fit's weights. With one objective every rule is
+/// V-MPO's step; they differ in how ε_k acts as a preference
+/// (docs/algorithms/mo-v-mpo-preferences.md has the derivation and measurements).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TopK {
+    /// One selection for all objectives, the top `top_k_fraction` of the pairs by
+    /// sum_k A_k / eta_k over the objectives with ε_k > 0, and fit weights
+    /// proportional to exp(sum_k A_k / eta_k) on it; each eta_k's dual (eq. 24) is over
+    /// the selection. ε_k -> 0 removes objective k continuously, and a larger ε_k never
+    /// lowers the fit's mean A_k (ours; the default).
+    #[default]
+    Joint,
+    /// The `joint` selection, with the fit weights the sum over objectives of each
+    /// q_k over it (eq. 25 as written; uniform for ε_k = 0). ε_k -> 0 removes
+    /// objective k continuously, but a change of the selection can lower the fit's
+    /// mean A_k when ε_k grows.
+    Shared,
+    /// Each objective keeps the top of its own advantages and q_k sums to 1 over
+    /// them; ε_k = 0 gives uniform weights over all real pairs. Every ε_k > 0 then
+    /// carries the same mass into the fit: the rule before issue 38, kept to
+    /// reproduce its results and as "each objective improves, ε only shapes how".
+    PerObjective,
+    /// Each objective's top half sets its dual, and the fit weights every real pair
+    /// by the sum over objectives of softmax(A_k / eta_k) over all of them (no
+    /// selection in the fit; with one objective this is not V-MPO's step).
+    DualsOnly,
+}
+
 /// On-policy learner and unroll settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -16,9 +46,14 @@ pub struct VmpoConfig {
     pub unroll_length: usize,
     /// A.3: "k-step returns ... with a discount factor of 0.95".
     pub discount: f64,
-    /// D.2.1 "top-k advantages": the fraction of the batch's advantages kept per
-    /// objective, 0.5 (Song et al. 2020).
+    /// D.2.1 "top-k advantages": the fraction of the batch's (s, a) pairs kept, 0.5
+    /// (Song et al. 2020); which pairs, per `top_k`.
     pub top_k_fraction: f64,
+    /// How the top-k selection and the objectives' weights combine (see `TopK`).
+    /// Not in the paper, which keeps "the top 50% of advantages in each batch"
+    /// without saying how for several objectives; `"joint"`, so that ε_k is a
+    /// preference (issue 38).
+    pub top_k: TopK,
     /// Table 5 "KL-constraint on policy mean" beta_mu 0.1 (on the KL summed over
     /// action dims, or on each dim's KL with `kl_constraint = "per_dimension"`).
     pub beta_mean: f64,
@@ -68,6 +103,13 @@ pub struct VmpoConfig {
     /// Disjoint minibatches of unrolls per pass, shuffled afresh each pass; one update
     /// each. Not in the paper; 1 (the whole batch). Must divide `batch_size`.
     pub minibatches: usize,
+    /// When a learner step makes more than one update (`epochs` x `minibatches` > 1)
+    /// and ends with KL(pi_old || pi) above a beta, pull the policy's parameters back
+    /// along the line from the step's start to its end until every part is within
+    /// its beta (at the step's real states). Each update's Lagrangian bounds the KL
+    /// only on average over updates; this bounds the step. Not in the paper (one
+    /// update per batch); on by default (ours). No effect on one-update steps.
+    pub project_step_kl: bool,
 }
 
 impl Default for VmpoConfig {
@@ -93,6 +135,8 @@ impl Default for VmpoConfig {
             grad_clip_norm: None,
             epochs: 1,
             minibatches: 1,
+            top_k: TopK::Joint,
+            project_step_kl: true,
         }
     }
 }

@@ -1,7 +1,7 @@
 """Expected values of the MO-V-MPO parts for agent/tests/golden.rs (appendix D), in
-PyTorch float64 with explicit loops: top-k selection and the E-step (D.2.1), the T-step
-value targets (D.1, eq. 21) and the policy fit (D.2.2, eq. 25). Run through
-make_golden.py.
+PyTorch float64 with explicit loops: top-k selection and the E-step (D.2.1) under every
+rule of `vmpo.top_k`, the T-step value targets (D.1, eq. 21) and the policy fit (D.2.2,
+eq. 25). Run through make_golden.py.
 """
 
 import math
@@ -13,71 +13,117 @@ from make_golden_step import softplus_inv, t, write
 def main():
     torch.set_default_dtype(torch.float64)
     # ---------------------------------------------------------------- MO-V-MPO step 1 (D.2.1)
-    # N = 8 (s, a) pairs, K = 2 objectives. Pair 0 is ineligible (padding / an episode start)
-    # and has the largest advantage of column 0, so it must not be selected. Eligible: 7, so
-    # k = floor(0.5 * 7) = 3 per objective. Column 0's top three are 3.0, 1.0, 1.0 (a tie
-    # inside the top k); column 1's are 2.0, 1.2, 0.5 with two more 0.5s tied at the
-    # threshold, so 5 pairs are selected (selection uses >=, as rlax does).
+    # N = 8 (s, a) pairs, K = 3 objectives. Pair 0 is ineligible (padding / an episode start)
+    # and has the largest advantage of column 0, so it must never be selected. Eligible: 7, so
+    # k = floor(0.5 * 7) = 3. Objective 2 has eps = 0: it is ignored by the joint score and gets
+    # no dual gradient. Every rule of `vmpo.top_k` is computed, each from its definition:
     adv = torch.tensor(
         [
-            [9.0, 0.3],
-            [3.0, -1.0],
-            [1.0, 0.5],
-            [1.0, 2.0],
-            [-2.0, 0.5],
-            [0.5, 1.2],
-            [-0.5, 0.5],
-            [0.0, -3.0],
+            [9.0, 0.3, 5.0],
+            [3.0, -1.0, -2.0],
+            [1.0, 0.5, 0.1],
+            [1.0, 2.0, 3.0],
+            [-2.0, 0.5, 1.0],
+            [0.5, 1.2, -1.0],
+            [-0.5, 0.5, 2.0],
+            [0.0, -3.0, 0.5],
         ]
     )
     eligible = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
-    eta_values = [0.8, 1.5]
-    eps = [0.1, 0.02]
+    eta_values = [0.8, 1.5, 0.6]
+    eps = [0.1, 0.02, 0.0]
     frac = 0.5
     N, K = adv.shape
-    n_el = int(sum(eligible))
+    rows = [i for i in range(N) if eligible[i] == 1.0]
+    n_el = len(rows)
     k_top = max(1, math.floor(frac * n_el))
-    selected = torch.zeros(N, K)
-    for k in range(K):
-        ranked = sorted((adv[i, k].item() for i in range(N) if eligible[i] == 1.0), reverse=True)
+    active = [e > 0.0 for e in eps]
+
+    def top(score):
+        """The eligible pairs whose score is >= the k-th largest (ties in, as rlax)."""
+        ranked = sorted((score[i] for i in rows), reverse=True)
         threshold = ranked[k_top - 1]
-        for i in range(N):
-            if eligible[i] == 1.0 and adv[i, k].item() >= threshold:
+        # The float32 Rust side must select the same pairs.
+        gap = min((abs(score[i] - threshold) for i in rows if score[i] != threshold), default=1.0)
+        assert gap > 1e-4, f"scores too close to the top-k threshold ({gap})"
+        return [i for i in rows if score[i] >= threshold]
+
+    def softmax_over(pairs, logits):
+        z = sum(math.exp(logits[i]) for i in pairs)
+        return [math.exp(logits[i]) / z if i in pairs else 0.0 for i in range(N)]
+
+    def tilt(k):
+        return [adv[i, k].item() / eta_values[k] for i in range(N)]
+
+    def uniform(pairs):
+        return [1.0 / len(pairs) if i in pairs else 0.0 for i in range(N)]
+
+    # joint: s_i = sum over active k of A_ki / eta_k, the log-density ratio of the product
+    # p_old prod_k exp(A_k / eta_k); one selection S = top(s) for every objective.
+    joint_score = [sum(adv[i, k].item() / eta_values[k] for k in range(K) if active[k]) for i in range(N)]
+    joint_set = top(joint_score)
+    per_objective_sets = [top([adv[i, k].item() for i in range(N)]) for k in range(K)]
+    selections = {
+        "joint": [joint_set] * K,
+        "shared": [joint_set] * K,
+        "per_objective": per_objective_sets,
+        "duals_only": per_objective_sets,
+    }
+
+    def fit_weights(rule):
+        """Eq. 25's weights per pair: one distribution for joint, K for the others."""
+        if rule == "joint":
+            # softmax_S(s): the product of the q_k on S, one distribution.
+            return softmax_over(joint_set, joint_score)
+        total = [0.0] * N
+        for k in range(K):
+            if rule == "shared":
+                q = softmax_over(joint_set, tilt(k)) if active[k] else uniform(joint_set)
+            elif rule == "per_objective":
+                q = softmax_over(per_objective_sets[k], tilt(k)) if active[k] else uniform(rows)
+            else:  # duals_only: the fit weights every eligible pair
+                q = softmax_over(rows, tilt(k)) if active[k] else uniform(rows)
+            total = [x + y for x, y in zip(total, q)]
+        return total
+
+    cases = {}
+    for rule, sets in selections.items():
+        param = torch.tensor([softplus_inv(v) for v in eta_values], requires_grad=True)
+        eta = torch.nn.functional.softplus(param) + 1e-8
+        loss = 0.0
+        for k in range(K):
+            if active[k]:
+                # eq. 24 with the expectation under p_old replaced by the mean over S_k
+                mean_exp = sum(torch.exp(adv[i, k] / eta[k]) for i in sets[k]) / len(sets[k])
+                loss = loss + eta[k] * (eps[k] + torch.log(mean_exp))
+        loss.backward()
+        # KL(q_k || p_old), q_k = softmax over S_k of A_k / eta_k, p_old uniform over the
+        # eligible pairs; 0 for eps_k = 0.
+        kl = []
+        for k in range(K):
+            q = softmax_over(sets[k], tilt(k))
+            kl.append(sum(w * math.log(w * n_el) for w in q if w > 0.0) if active[k] else 0.0)
+        selected = torch.zeros(N, K)
+        for k in range(K):
+            for i in sets[k]:
                 selected[i, k] = 1.0
-    weights = torch.zeros(N, K)
-    for k in range(K):
-        S = [i for i in range(N) if selected[i, k] == 1.0]
-        z = sum(math.exp(adv[i, k].item() / eta_values[k]) for i in S)
-        for i in S:
-            weights[i, k] = math.exp(adv[i, k].item() / eta_values[k]) / z
-    param = torch.tensor([softplus_inv(v) for v in eta_values], requires_grad=True)
-    eta = torch.nn.functional.softplus(param) + 1e-8
-    loss = 0.0
-    for k in range(K):
-        S = [i for i in range(N) if selected[i, k] == 1.0]
-        # eq. 24 with the expectation under p_old replaced by the mean over the selected pairs
-        mean_exp = sum(torch.exp(adv[i, k] / eta[k]) for i in S) / len(S)
-        loss = loss + eta[k] * (eps[k] + torch.log(mean_exp))
-    loss.backward()
-    # KL(q_k || p_old) with p_old uniform (1 / n_el) over the eligible pairs
-    kl = [
-        sum(weights[i, k].item() * math.log(weights[i, k].item() * n_el) for i in range(N) if weights[i, k] > 0)
-        for k in range(K)
-    ]
+        cases[rule] = {
+            "selected": t(selected),
+            "fit_weights": fit_weights(rule),
+            "temperature_loss": loss.item(),
+            "grad_temperature_param": param.grad.tolist(),
+            "kl": kl,
+        }
     write(
         "vmpo_estep",
         {
             "advantages": t(adv),
             "eligible": eligible,
             "temperature": eta_values,
-            "temperature_param": param.detach().tolist(),
+            "temperature_param": [softplus_inv(v) for v in eta_values],
             "epsilon": eps,
             "fraction": frac,
-            "selected": t(selected),
-            "weights": t(weights),
-            "temperature_loss": loss.item(),
-            "grad_temperature_param": param.grad.tolist(),
-            "kl": kl,
+            "rules": cases,
         },
     )
 

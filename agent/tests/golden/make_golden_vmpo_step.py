@@ -16,10 +16,14 @@ the Rust code's vectorised forms, and torch.optim.Adam for every optimizer:
   unroll, G_t = sum_{l=t}^{end-1} gamma^(l-t) r_l + gamma^(end-t) V(s_end), `end` the
   unroll's end or its first padding step, the sum cut after a terminal step;
   A = G - V; the value loss 0.5 (V - G)^2 averaged over real steps, summed over heads.
-- D.2.1 eqs. 22-24 per objective over the real pairs (p_old uniform over them): keep the
-  top 50% of A_k (k = max(1, floor(n / 2)), ties in; Song et al. 2020),
-  q_k proportional to exp(A_k / eta_k) on them, and the dual
-  eta_k (eps_k + log mean_{top} exp(A_k / eta_k)).
+- D.2.1 eqs. 22-24 over the real pairs (p_old uniform over them) with `vmpo.top_k =
+  "joint"`: keep the top 50% of the pairs by s = sum_k A_k / eta_k (k = max(1,
+  floor(n / 2)), ties in; Song et al. 2020's top-k, applied once), fit weights
+  exp(s) / sum_top exp(s) on them (the product of the q_k, see
+  docs/algorithms/mo-v-mpo-preferences.md), and per objective the dual
+  eta_k (eps_k + log mean_{top} exp(A_k / eta_k)). With one objective (the categorical
+  case) this is V-MPO's step, and that file's values are the ones of the rule before
+  issue 38.
 - D.2.2 eq. 25: maximise sum_k sum_i q_k(i) log pi(a_i|s_i) under KL(pi_old || pi) < beta
   with Lagrangian relaxation (V-MPO): alpha as a multiplier, stop-gradients as in
   V-MPO's loss. Gaussian policies use MO-MPO's decoupled form (eqs. 18-20) with one
@@ -238,21 +242,34 @@ def n_step_targets(values, rewards, discounts, valid):
 
 
 def step_one(advantages, eta, epsilon):
-    """Eqs. 22-24 with top-k over the real pairs of one objective. advantages: list of
-    floats. -> weights (list), dual loss (tensor in eta), KL(q || p_old)."""
-    n = len(advantages)
-    k = max(1, math.floor(TOP_K_FRACTION * n))
-    ranked = sorted(advantages, reverse=True)
-    threshold = ranked[k - 1]
+    """Eqs. 22-24 under `vmpo.top_k = "joint"` (the default) over the real pairs.
+    advantages: per objective, a list of floats. -> fit weights (list, summing to 1),
+    the dual loss (tensor in eta), KL(q_k || p_old) per objective."""
+    n, n_obj = len(advantages[0]), len(advantages)
+    lam = [1.0 / eta[k].item() if epsilon[k] > 0.0 else 0.0 for k in range(n_obj)]
+    # One selection for all objectives: the top 50% of s_i = sum_k A_ki / eta_k (the
+    # log-density ratio of p_old prod_k exp(A_k / eta_k)), k = max(1, floor(n / 2)),
+    # ties in.
+    score = [sum(lam[k] * advantages[k][i] for k in range(n_obj)) for i in range(n)]
+    k_top = max(1, math.floor(TOP_K_FRACTION * n))
+    threshold = sorted(score, reverse=True)[k_top - 1]
     # The float32 Rust side must select the same pairs.
-    gap = min((abs(a - threshold) for a in advantages if a != threshold), default=1.0)
-    assert gap > 1e-4, f"advantages too close to the top-k threshold ({gap})"
-    top = [i for i in range(n) if advantages[i] >= threshold]
-    z = sum(math.exp(advantages[i] / eta.item()) for i in top)
-    weights = [math.exp(advantages[i] / eta.item()) / z if i in top else 0.0 for i in range(n)]
-    mean_exp = sum(torch.exp(advantages[i] / eta) for i in top) / len(top)
-    dual = eta * (epsilon + torch.log(mean_exp))
-    kl = sum(w * math.log(w * n) for w in weights if w > 0.0)
+    gap = min((abs(x - threshold) for x in score if x != threshold), default=1.0)
+    assert gap > 1e-4, f"scores too close to the top-k threshold ({gap})"
+    top = [i for i in range(n) if score[i] >= threshold]
+    # Fit weights: the product of the q_k on the selection, one distribution.
+    z = sum(math.exp(score[i]) for i in top)
+    weights = [math.exp(score[i]) / z if i in top else 0.0 for i in range(n)]
+    dual, kl = 0.0, []
+    for k in range(n_obj):
+        if epsilon[k] == 0.0:
+            kl.append(0.0)
+            continue
+        mean_exp = sum(torch.exp(advantages[k][i] / eta[k]) for i in top) / len(top)
+        dual = dual + eta[k] * (epsilon[k] + torch.log(mean_exp))
+        zk = sum(math.exp(advantages[k][i] / eta[k].item()) for i in top)
+        q = [math.exp(advantages[k][i] / eta[k].item()) / zk for i in top]
+        kl.append(sum(w * math.log(w * n) for w in q))
     return weights, dual, kl
 
 
@@ -292,16 +309,10 @@ class Learner:
         sum(per_head).backward()
         self.critic_opt.step()
 
-        # 2. Step 1 (D.2.1), per objective; objective k is head k here.
+        # 2. Step 1 (D.2.1); objective k is head k here.
         eta = F.softplus(self.temperature_param) + 1e-8
-        pair_weights = [0.0] * len(real)
-        temperature_loss, estep_kl = 0.0, []
-        for k, eps in enumerate(self.case["epsilon"]):
-            adv = [(targets[s, b, k] - values[s, b, k]).item() for s, b in real]
-            w, dual, kl = step_one(adv, eta[k], eps)
-            pair_weights = [x + y for x, y in zip(pair_weights, w)]
-            temperature_loss = temperature_loss + dual
-            estep_kl.append(kl)
+        adv = [[(targets[s, b, k] - values[s, b, k]).item() for s, b in real] for k in range(len(self.case["epsilon"]))]
+        pair_weights, temperature_loss, estep_kl = step_one(adv, eta, self.case["epsilon"])
 
         # 3. Step 2 (D.2.2, eq. 25) at the real states.
         obs = torch.stack([batch["observations"][s, b] for s, b in real])
