@@ -2,9 +2,8 @@
 //! (eqs. 16-20), a member whose policy has moved further from the target policy than
 //! `max_kl_ratio` times its bound (either part of the decoupled Gaussian KL against
 //! beta_mu / beta_Sigma, or the categorical KL against its beta) is moved back towards
-//! the target policy, halving its displacement in parameter space until the KL on the
-//! step's states is within the bound (after `HALVINGS` halvings it is put at the
-//! target).
+//! the target policy along its displacement in parameter space until the KL on the
+//! step's states is within the bound (`project`).
 //!
 //! Why: the paper keeps KL(pi_old || pi) < beta by Lagrangian relaxation (C.3), one
 //! gradient step on the policy and one on alpha per learner step. That holds the
@@ -24,8 +23,8 @@ use super::mstep::{KlConstraint, trust_region_kl};
 use crate::nets::{Members, PolicyOutput};
 use tch::{Kind, Tensor, nn};
 
-/// Halvings of a step before it is undone.
-pub const HALVINGS: usize = 5;
+/// Halvings after the first shortening before a member is put at its target.
+pub const HALVINGS: usize = 10;
 
 /// The bounds a projection holds the policy to.
 #[derive(Debug, Clone, Copy)]
@@ -130,10 +129,11 @@ fn any(t: &Tensor) -> bool {
 }
 
 /// Moves each member whose `ratio_of` (the members' KL ratios at the current
-/// parameters, `[P]`) exceeds `max_ratio` back towards its target policy, halving its
-/// displacement from the target until the ratio is within; after [`HALVINGS`]
-/// halvings the member is put at its target (KL 0). Returns the fraction of its
-/// displacement each member kept, `[P]` (1: untouched).
+/// parameters, `[P]`) exceeds `max_ratio` back towards its target policy: first to
+/// where the KL would be 0.9 of the bound if it grew as the square of the
+/// displacement (as the mean part does), then halving that until the ratio is within;
+/// after [`HALVINGS`] halvings the member is put at its target (KL 0). Returns the
+/// fraction of its displacement each member kept, `[P]` (1: untouched).
 ///
 /// The displacement, not only the last step, is shortened: the bound is on the KL
 /// from the target policy, which a batch of states the last step never saw can show
@@ -145,25 +145,30 @@ pub fn project(
     max_ratio: f64,
     mut ratio_of: impl FnMut() -> Tensor,
 ) -> Tensor {
-    let mut outside = tch::no_grad(&mut ratio_of).gt(max_ratio);
-    let mut scale = outside.ones_like().to_kind(Kind::Float);
+    let ratio = tch::no_grad(&mut ratio_of);
+    let mut outside = ratio.gt(max_ratio);
+    let ones = ratio.ones_like().to_kind(Kind::Float);
     if !any(&outside) {
-        return scale;
+        return ones;
     }
     let displacement = Displacement::of(online, target, members);
-    for halving in 1..=HALVINGS + 1 {
-        let shrink = outside.to_kind(Kind::Float);
-        scale = match halving > HALVINGS {
-            true => &scale * (&shrink * -1.0 + 1.0),
-            false => &scale * (&shrink * -0.5 + 1.0),
-        };
+    let first = (ratio.to_kind(Kind::Float).reciprocal() * (0.81 * max_ratio))
+        .sqrt()
+        .clamp_max(1.0);
+    let mut scale = first.where_self(&outside, &ones);
+    for halving in 0..=HALVINGS {
         displacement.keep(&scale);
-        if halving > HALVINGS {
-            break;
-        }
         outside = tch::no_grad(&mut ratio_of).gt(max_ratio);
         if !any(&outside) {
             break;
+        }
+        let factor = match halving == HALVINGS {
+            true => 0.0, // still outside: at the target
+            false => 0.5,
+        };
+        scale = (&scale * factor).where_self(&outside, &scale);
+        if halving == HALVINGS {
+            displacement.keep(&scale);
         }
     }
     scale
@@ -197,7 +202,7 @@ mod tests {
     }
 
     #[test]
-    fn each_member_keeps_the_longest_halved_displacement_within_the_bound() {
+    fn each_member_is_shortened_to_within_the_bound_or_put_at_its_target() {
         let target = store(&[0.0, 0.0, 0.0]);
         // Members displaced to 1, 0.1 and 1; member 2's bound cannot be met away
         // from its target.
@@ -210,9 +215,28 @@ mod tests {
             w.square() / beta + never
         };
         let kept = project(&online, &target, Members::new(3).unwrap(), 2.0, ratio);
-        // w^2 / 0.01 <= 2 needs |w| <= 0.141: 1 -> 0.5 -> 0.25 -> 0.125.
-        assert_eq!(Vec::<f32>::try_from(&kept).unwrap(), vec![0.125, 1.0, 0.0]);
-        assert_eq!(w(&online), vec![0.125, 0.1, 0.0]);
+        // Member 0: ratio 100 at w = 1, quadratic in w, so the first shortening to
+        // sqrt(0.81 * 2 / 100) = 0.127 puts it at 0.9 of the bound, within.
+        let kept = Vec::<f32>::try_from(&kept).unwrap();
+        assert!((kept[0] - 0.1273).abs() < 1e-3, "{kept:?}");
+        assert_eq!(kept[1..], [1.0, 0.0]);
+        let at = w(&online);
+        assert!(
+            (at[0] - kept[0]).abs() < 1e-6 && at[1..] == [0.1, 0.0],
+            "{at:?}"
+        );
+    }
+
+    #[test]
+    fn a_ratio_that_grows_slower_than_the_square_is_halved_into_the_bound() {
+        let target = store(&[0.0]);
+        let online = store(&[1.0]);
+        // Linear in the displacement: 10 at w = 1. The first shortening (to
+        // sqrt(0.81 * 2 / 10) = 0.402) leaves 4.02, two halvings 1.006 <= 2.
+        let ratio = || online.variables()["w"].abs().flatten(0, -1) * 10.0;
+        let kept = project(&online, &target, Members::ONE, 2.0, ratio);
+        let kept = kept.double_value(&[0]);
+        assert!((kept - 0.4025 / 4.0).abs() < 1e-3, "{kept}");
     }
 
     #[test]

@@ -99,8 +99,10 @@ pub struct MpoConfig {
     /// Projection of the policy onto its trust region: after each M-step, a policy
     /// whose KL from the target policy exceeds `max_kl_ratio` times beta (either
     /// part of the Gaussian KL, or the categorical KL) is moved back towards the
-    /// target policy, its displacement halved until the KL is within, and put at the
-    /// target after five halvings (`algo/projection.rs`). The paper keeps
+    /// target policy along its displacement: first to where a KL growing as the
+    /// square of the displacement would be 0.9 of the bound, then halved until the
+    /// KL is within, and put at the target after ten halvings
+    /// (`algo/projection.rs`). The paper keeps
     /// the KL under beta by Lagrangian relaxation alone (C.3), which holds it on
     /// average but lets one target period of steps move the policy by hundreds of
     /// times beta after alpha has decayed (docs/stability.md). `None` (default): the
