@@ -30,7 +30,7 @@ for entry in "${tests[@]}"; do
     out=$(MO_MPO_TEST_SEED=$seed cargo test --locked -q -p "$package" --test "$test" -- --nocapture 2>&1)
     status=$([[ $? -eq 0 ]] && echo passed || echo FAILED)
     [[ $status == FAILED ]] && failed=$((failed + 1))
-    figures=$(grep -h '^learning-figures' <<<"$out" | sed 's/^learning-figures //' | paste -sd ';' -)
+    figures=$(grep -o 'learning-figures .*' <<<"$out" | sed 's/^learning-figures //' | paste -sd ';' -)
     echo "$test seed $seed: $status ${figures:-(no figures printed)}"
     [[ $status == FAILED ]] && grep -E "panicked|assertion" <<<"$out" | head -3 | sed 's/^/    /'
   done

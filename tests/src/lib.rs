@@ -10,6 +10,31 @@ use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
 use agent::sweep::{FrontSummary, SweepConfig};
 
+/// The base seed of a learning test: 0, or `MO_MPO_TEST_SEED` when set. A learning
+/// test trains from it, so that `scripts/learning_seeds.sh` can check its threshold on
+/// other seeds (float kernels differ between CPUs, so one seed's trajectory differs
+/// between machines: a threshold must hold across seeds). Each learning test's
+/// comment records the seeds it was checked on.
+pub fn test_seed() -> u64 {
+    std::env::var("MO_MPO_TEST_SEED").map_or(0, |v| {
+        v.parse()
+            .unwrap_or_else(|_| panic!("MO_MPO_TEST_SEED: expected an unsigned integer, got {v:?}"))
+    })
+}
+
+/// `cfg` trained from `seed` (envs, sampling, networks).
+pub fn with_seed(mut cfg: TrainConfig, seed: u64) -> TrainConfig {
+    cfg.seed = seed;
+    cfg.learner.seed = seed;
+    cfg
+}
+
+/// Prints a learning test's measured figures on one line, which
+/// `scripts/learning_seeds.sh` collects (cargo shows it with `--nocapture`).
+pub fn report_figures(test: &str, figures: &str) {
+    eprintln!("learning-figures {test} seed {}: {figures}", test_seed());
+}
+
 /// `configs/smoke/dst.toml` (a seconds-long DST run) writing its runs under `runs_dir`.
 pub fn smoke_config(runs_dir: &Path) -> TrainConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");
