@@ -74,7 +74,7 @@ if [[ $sides == *ours* ]]; then
   scripts/setup.sh
   [[ -n ${AGENT:-} ]] || cargo build --locked --release -p agent --bin agent
   source scripts/lib/env_server.sh
-  start_env_server "$out/server.log"
+  start_env_server "$out/server-$$.log" # one per invocation: two invocations may share a session
 fi
 [[ $sides == *peers* ]] && scripts/peers/setup.sh
 
