@@ -35,6 +35,43 @@ pub fn report_figures(test: &str, figures: &str) {
     eprintln!("learning-figures {test} seed {}: {figures}", test_seed());
 }
 
+/// What a run wrote that must repeat: `episodes.csv` without its last column (the
+/// wall-clock stamp) and `learner.jsonl` without its timing fields.
+#[derive(Debug, PartialEq)]
+pub struct Curve {
+    /// `episodes.csv`'s lines, header included, each without its last column.
+    pub episodes: Vec<String>,
+    /// `learner.jsonl`'s rows without their timing fields, as JSON text.
+    pub learner: Vec<String>,
+}
+
+/// The [`Curve`] of the run in `run_dir`.
+pub fn curve(run_dir: &Path) -> Curve {
+    let episodes = std::fs::read_to_string(run_dir.join("episodes.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string())
+        .collect();
+    let learner = std::fs::read_to_string(run_dir.join("learner.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+            let o = v.as_object_mut().unwrap();
+            for clock in [
+                "wall_seconds",
+                "step_ms",
+                "env_steps_per_second",
+                "learner_steps_per_second",
+            ] {
+                o.remove(clock);
+            }
+            v.to_string()
+        })
+        .collect();
+    Curve { episodes, learner }
+}
+
 /// `configs/smoke/dst.toml` (a seconds-long DST run) writing its runs under `runs_dir`.
 pub fn smoke_config(runs_dir: &Path) -> TrainConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/smoke/dst.toml");

@@ -16,42 +16,7 @@ use std::path::Path;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::run_config::TrainConfig;
 use agent::train::{TrainOptions, train, train_population};
-use integration_tests::{short_pendulum, smoke_config};
-
-/// What a run wrote that must repeat: `episodes.csv` and `learner.jsonl` without
-/// their wall-clock fields.
-#[derive(Debug, PartialEq)]
-struct Curve {
-    episodes: Vec<String>,
-    learner: Vec<String>,
-}
-
-fn curve(run_dir: &Path) -> Curve {
-    // episodes.csv without its last column, the wall-clock stamp.
-    let episodes = std::fs::read_to_string(run_dir.join("episodes.csv"))
-        .unwrap()
-        .lines()
-        .map(|l| l.rsplit_once(',').unwrap().0.to_string())
-        .collect();
-    let learner = std::fs::read_to_string(run_dir.join("learner.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
-            let o = v.as_object_mut().unwrap();
-            for clock in [
-                "wall_seconds",
-                "step_ms",
-                "env_steps_per_second",
-                "learner_steps_per_second",
-            ] {
-                o.remove(clock);
-            }
-            v.to_string()
-        })
-        .collect();
-    Curve { episodes, learner }
-}
+use integration_tests::{Curve, curve, short_pendulum, smoke_config};
 
 async fn run(cfg: TrainConfig, server: &LocalServer) -> Curve {
     let s = train(

@@ -23,71 +23,15 @@ use std::sync::{Condvar, Mutex, MutexGuard};
 use std::time::Instant;
 
 use crate::checkpoint::run::{ActorProgress, PaceOrigin};
-use crate::replay::{ReplayError, Snippet, SnippetReplay};
-use crate::solve::{SolveRecord, SolveTracker};
+use crate::replay::SnippetReplay;
+use crate::solve::SolveRecord;
 
-/// Episodes kept for the running mean shown while training.
-pub const RECENT: usize = 20;
+mod eval_tap;
+pub use eval_tap::EvalPoint;
+use eval_tap::EvalTap;
 
-impl Counters {
-    /// Mean vector return of the recent episodes (empty before the first one).
-    pub fn recent_mean_return(&self) -> Vec<f64> {
-        let n = self.recent_returns.len() as f64;
-        let k = self.recent_returns.front().map_or(0, Vec::len);
-        (0..k)
-            .map(|i| self.recent_returns.iter().map(|r| r[i]).sum::<f64>() / n)
-            .collect()
-    }
-}
-
-/// Counters shared by actors, learner and the progress display.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Counters {
-    /// Env steps summed over all instances.
-    pub env_steps: u64,
-    /// Learner steps done.
-    pub learner_steps: u64,
-    /// Episodes finished.
-    pub episodes: u64,
-    /// Undiscounted vector returns of the latest episodes (at most `RECENT`).
-    pub recent_returns: std::collections::VecDeque<Vec<f64>>,
-    /// Set when the run should end (done, Ctrl-C, or an error).
-    pub stop: bool,
-    /// First fatal error, if any.
-    pub error: Option<String>,
-    /// The signal that stopped the run early (`Ctrl-C`, `SIGTERM`), if one did.
-    pub interrupted: Option<String>,
-    /// Decides and keeps when the run first counted as solved (`run.solve_threshold`).
-    pub solve: SolveTracker,
-    /// Per actor, what its last committed step reached.
-    pub actors: Vec<ActorProgress>,
-}
-
-/// What one actor step adds to the run.
-#[derive(Debug)]
-pub struct ActorStep {
-    /// The actor.
-    pub actor: usize,
-    /// Its act calls so far, this step's included.
-    pub acts: u64,
-    /// Env steps taken (B).
-    pub env_steps: u64,
-    /// Snippets completed, for the replay.
-    pub snippets: Vec<Snippet>,
-    /// Returns of the episodes that ended.
-    pub episode_returns: Vec<Vec<f64>>,
-}
-
-/// Why an actor step could not be committed.
-#[derive(Debug, thiserror::Error)]
-pub enum CommitError {
-    /// A snippet did not fit the replay.
-    #[error(transparent)]
-    Replay(#[from] ReplayError),
-    /// Writing the step's log rows failed.
-    #[error("episodes.csv: {0}")]
-    Log(std::io::Error),
-}
+mod counters;
+pub use counters::{ActorStep, CommitError, Counters, RECENT};
 
 /// How many learner steps the data so far allows.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -111,31 +55,6 @@ pub enum Pace {
 struct Fill {
     transitions: u64,
     inserted: u64,
-}
-
-/// A periodic evaluation that fell due (`run.eval_period`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct EvalPoint {
-    /// The multiple of the period the run's env steps reached.
-    pub env_steps: u64,
-    /// Learner steps taken at that moment: the published policy is theirs.
-    pub learner_steps: u64,
-}
-
-/// Who hears of evaluations as they fall due.
-struct EvalTap {
-    period: u64,
-    next: u64,
-    notify: Box<dyn Fn(EvalPoint) + Send + Sync>,
-}
-
-impl std::fmt::Debug for EvalTap {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("EvalTap")
-            .field("period", &self.period)
-            .field("next", &self.next)
-            .finish_non_exhaustive()
-    }
 }
 
 /// Shared state of one run.
@@ -178,13 +97,8 @@ impl Schedule {
     /// learner cannot step until the commit ends, so the policy published at that
     /// moment is the one after `EvalPoint::learner_steps`, on every invocation.
     pub fn set_eval_tap(&self, period: u64, notify: impl Fn(EvalPoint) + Send + Sync + 'static) {
-        let period = period.max(1);
-        let next = (self.lock().env_steps / period + 1) * period;
-        *self.eval_tap.lock().unwrap_or_else(|e| e.into_inner()) = Some(EvalTap {
-            period,
-            next,
-            notify: Box::new(notify),
-        });
+        let tap = EvalTap::new(period, self.lock().env_steps, Box::new(notify));
+        *self.eval_tap.lock().unwrap_or_else(|e| e.into_inner()) = Some(tap);
     }
 
     /// Stops the evaluation tap (its `notify` is dropped).
@@ -315,13 +229,7 @@ impl Schedule {
         }
         let mut tap = self.eval_tap.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(tap) = tap.as_mut() {
-            while c.env_steps >= tap.next {
-                (tap.notify)(EvalPoint {
-                    env_steps: tap.next,
-                    learner_steps: c.learner_steps,
-                });
-                tap.next += tap.period;
-            }
+            tap.reach(c.env_steps, c.learner_steps);
         }
     }
 
