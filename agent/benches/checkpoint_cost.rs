@@ -21,14 +21,14 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use agent::algo::{Learner, LearnerDims};
-use agent::checkpoint::run::PaceOrigin;
-use agent::metrics::RunFiles;
-use agent::nets::ActionKind;
-use agent::replay::{Snippet, SnippetLayout, SnippetReplay};
-use agent::resume::Checkpointer;
-use agent::run_config::TrainConfig;
-use agent::schedule::{ActorStep, Counters, Pace, Schedule};
+use agent::core::algo::{Learner, LearnerDims};
+use agent::core::nets::ActionKind;
+use agent::core::replay::{Snippet, SnippetLayout, SnippetReplay};
+use agent::report::metrics::RunFiles;
+use agent::runtime::checkpoint::run::PaceOrigin;
+use agent::runtime::resume::Checkpointer;
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::schedule::{ActorStep, Counters, Pace, Schedule};
 use tch::Device;
 
 /// Observation size, action kind and reward names of a preset's env (its EnvSpec).

@@ -24,7 +24,7 @@
 
 mod common;
 
-use agent::config::{LearnerConfig, NetworkConfig};
+use agent::core::learner_config::{LearnerConfig, NetworkConfig};
 use std::io::{BufRead, BufReader, Write as _};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 

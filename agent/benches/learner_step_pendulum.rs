@@ -10,7 +10,7 @@
 
 mod common;
 
-use agent::config::{LearnerConfig, NetworkConfig};
+use agent::core::learner_config::{LearnerConfig, NetworkConfig};
 
 fn main() {
     let mut cfg = LearnerConfig {

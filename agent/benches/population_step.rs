@@ -24,11 +24,11 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::LearnerConfig;
-use agent::nets::ActionKind;
-use agent::random::{Purpose, StreamKey};
-use agent::run_config::TrainConfig;
+use agent::core::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::core::learner_config::LearnerConfig;
+use agent::core::nets::ActionKind;
+use agent::core::random::{Purpose, StreamKey};
+use agent::runtime::run_config::TrainConfig;
 use std::path::Path;
 use std::time::Instant;
 use tch::{Device, Kind, Tensor};
@@ -133,7 +133,7 @@ fn time_population(learner: &mut Learner, batches: &[SnippetBatch], steps: usize
     for _ in 0..steps {
         learner.step_members(batches).expect("population step");
     }
-    agent::device::synchronize(learner.device());
+    agent::core::device::synchronize(learner.device());
     start.elapsed().as_secs_f64() / steps as f64
 }
 
@@ -146,7 +146,7 @@ fn time_singles(singles: &mut [Learner], batches: &[SnippetBatch], steps: usize)
         }
     }
     if let Some(l) = singles.first() {
-        agent::device::synchronize(l.device());
+        agent::core::device::synchronize(l.device());
     }
     start.elapsed().as_secs_f64() / steps as f64
 }

@@ -16,11 +16,11 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::{
+use agent::core::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::core::learner_config::{
     Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource,
 };
-use agent::nets::{ActionKind, ObsLeaf};
+use agent::core::nets::{ActionKind, ObsLeaf};
 use tch::{Kind, Tensor};
 
 const OBJECTIVES: [&str; 5] = ["com", "vel", "app", "quat", "trunc"];
@@ -29,9 +29,9 @@ const PROPRIO: i64 = 232;
 const ACT: i64 = 56;
 
 fn main() {
-    agent::device::tune_allocator();
-    let threads = agent::device::configure_threads(None);
-    let device = agent::device::learner_device();
+    agent::core::device::tune_allocator();
+    let threads = agent::core::device::configure_threads(None);
+    let device = agent::core::device::learner_device();
     let mut cfg = LearnerConfig {
         algorithm: Algorithm::MoVmpo,
         objectives: OBJECTIVES

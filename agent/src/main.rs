@@ -5,13 +5,13 @@ mod cli;
 
 use std::path::PathBuf;
 
-use agent::config::DeviceChoice;
+use agent::core::learner_config::DeviceChoice;
 use agent::env::connection::ConnectionConfig;
-use agent::eval::evaluate_checkpoint_at;
-use agent::run_config::TrainConfig;
+use agent::report::video::VideoPlan;
+use agent::runtime::eval::evaluate_checkpoint_at;
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train};
 use agent::sweep::{SweepConfig, SweepFolder};
-use agent::train::{TrainOptions, train};
-use agent::video::VideoPlan;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use cli::args::{ConnectionArgs, VideoArgs, server_address};
@@ -141,7 +141,7 @@ enum Command {
         /// An ε-conditioned policy's preference, e.g. `task=0.1,action_norm=0.02`:
         /// conditioned objectives only, any ε > 0 (on its training grid or not);
         /// default: the grid's middle point.
-        #[arg(long, value_name = "NAME=EPS,...", value_parser = agent::algo::preferences::parse_setting)]
+        #[arg(long, value_name = "NAME=EPS,...", value_parser = agent::core::algo::preferences::parse_setting)]
         epsilon: Option<std::collections::BTreeMap<String, f64>>,
     },
     /// Write a checkpoint's deterministic actions for the observations in a file.
@@ -163,7 +163,7 @@ enum Command {
         out: Option<PathBuf>,
         /// An ε-conditioned policy's preference, as for `eval --epsilon`; the
         /// observations are then the env's, without the preference features.
-        #[arg(long, value_name = "NAME=EPS,...", value_parser = agent::algo::preferences::parse_setting)]
+        #[arg(long, value_name = "NAME=EPS,...", value_parser = agent::core::algo::preferences::parse_setting)]
         epsilon: Option<std::collections::BTreeMap<String, f64>>,
     },
     /// List the envs a server offers, with their objectives.
@@ -202,7 +202,7 @@ enum Command {
 
 fn main() -> Result<()> {
     // Before the runtime's threads exist: mallopt's settings are process-wide.
-    agent::device::tune_allocator();
+    agent::core::device::tune_allocator();
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?
@@ -371,7 +371,7 @@ async fn run() -> Result<()> {
             out,
             epsilon,
         } => {
-            if let Some(json) = agent::act::act_on_file(
+            if let Some(json) = agent::runtime::act::act_on_file(
                 &checkpoint,
                 &observations,
                 out.as_deref(),

@@ -4,8 +4,8 @@
 
 mod common;
 
-use agent::algo::Learner;
-use agent::config::{Algorithm, ConditioningConfig};
+use agent::core::algo::Learner;
+use agent::core::learner_config::{Algorithm, ConditioningConfig};
 use tch::{Device, Kind, Tensor};
 
 /// One test at a time (`common::exclusive_rng`), from seed 0.

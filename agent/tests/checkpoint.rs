@@ -3,7 +3,7 @@
 
 mod common;
 
-use agent::algo::Learner;
+use agent::core::algo::Learner;
 use common::{continuous_learner, movmpo_mocap_learner, random_batch};
 use tch::{Device, Kind, Tensor};
 
@@ -32,7 +32,7 @@ fn trained_and_restored(mut learner: Learner, dir: &std::path::Path) -> (Learner
 fn step_alike(
     a: &mut Learner,
     b: &mut Learner,
-    batch: &agent::algo::SnippetBatch,
+    batch: &agent::core::algo::SnippetBatch,
     seed: i64,
 ) -> Vec<f32> {
     tch::manual_seed(seed);
@@ -108,7 +108,7 @@ fn per_dimension_multipliers_round_trip() {
     tch::set_num_threads(1);
     let dir = tempfile::tempdir().unwrap();
     let learner = common::continuous_learner_with(|cfg| {
-        cfg.mpo.kl_constraint = agent::config::KlConstraint::PerDimension;
+        cfg.mpo.kl_constraint = agent::core::learner_config::KlConstraint::PerDimension;
     });
     let (mut learner, mut restored) = trained_and_restored(learner, dir.path());
     // One alpha_mu and one alpha_Sigma per action dimension (D = 2), and the
@@ -129,7 +129,7 @@ fn movmpo_per_dimension_multipliers_round_trip() {
     let dir = tempfile::tempdir().unwrap();
     // MO-V-MPO fits its policy through the same trust region, so the option applies.
     let learner = common::movmpo_mocap_learner_with(|cfg| {
-        cfg.vmpo.kl_constraint = agent::config::KlConstraint::PerDimension;
+        cfg.vmpo.kl_constraint = agent::core::learner_config::KlConstraint::PerDimension;
     });
     let (mut learner, mut restored) = trained_and_restored(learner, dir.path());
     let alpha = learner.alpha_by_part();
@@ -148,7 +148,7 @@ async fn eval_of_a_checkpoint_without_its_run_config_names_the_missing_file() {
     // <dir>/copied/checkpoints/step_3: the run folder would be <dir>/copied.
     let ckpt = dir.path().join("copied/checkpoints/step_3");
     continuous_learner().save_checkpoint(&ckpt).unwrap();
-    let err = agent::eval::evaluate_checkpoint(
+    let err = agent::runtime::eval::evaluate_checkpoint(
         &ckpt,
         &["127.0.0.1:1".into()],
         &agent::env::connection::ConnectionConfig::default(),

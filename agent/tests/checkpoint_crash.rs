@@ -14,11 +14,11 @@ use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use agent::checkpoint::run::{PaceOrigin, latest_checkpoint};
-use agent::metrics::RunFiles;
-use agent::replay::{Snippet, SnippetLayout, SnippetReplay};
-use agent::resume::{Checkpointer, Reopened, open_checkpoint, restore_schedule};
-use agent::schedule::{ActorStep, Counters, Pace, Schedule};
+use agent::core::replay::{Snippet, SnippetLayout, SnippetReplay};
+use agent::report::metrics::RunFiles;
+use agent::runtime::checkpoint::run::{PaceOrigin, latest_checkpoint};
+use agent::runtime::resume::{Checkpointer, Reopened, open_checkpoint, restore_schedule};
+use agent::runtime::schedule::{ActorStep, Counters, Pace, Schedule};
 use tch::Device;
 
 const CHILD_DIR: &str = "AGENT_TEST_CHECKPOINT_WRITER_DIR";

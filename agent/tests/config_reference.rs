@@ -20,17 +20,17 @@ use config_doc::generate;
 /// The files that define config structs, relative to `agent/`. A field whose type is
 /// defined anywhere else stops the generator with the type's name.
 pub(crate) const SOURCES: &[&str] = &[
-    "src/run_config/mod.rs",
-    "src/config/mod.rs",
-    "src/config/mpo.rs",
-    "src/config/vmpo.rs",
-    "src/config/network.rs",
-    "src/config/shared.rs",
+    "src/runtime/run_config/mod.rs",
+    "src/core/learner_config/mod.rs",
+    "src/core/learner_config/mpo.rs",
+    "src/core/learner_config/vmpo.rs",
+    "src/core/learner_config/network.rs",
+    "src/core/learner_config/shared.rs",
     "src/env/connection.rs",
     "src/env/deadline.rs",
-    "src/sweep/config.rs",
-    "src/front/mod.rs",
-    "src/config/conditioning.rs",
+    "src/sweep/file.rs",
+    "src/report/front/mod.rs",
+    "src/core/learner_config/conditioning.rs",
 ];
 
 /// What the committed reference is compared against.
@@ -78,7 +78,7 @@ fn an_undocumented_field_or_variant_is_reported() {
     let mut sources = read_sources();
     let (file, text) = sources
         .iter_mut()
-        .find(|(f, _)| f == "src/config/mpo.rs")
+        .find(|(f, _)| f == "src/core/learner_config/mpo.rs")
         .unwrap();
     let documented = "    /// Table 2 \"batch size\" 512 (snippets per learner step).\n";
     assert!(
@@ -88,7 +88,7 @@ fn an_undocumented_field_or_variant_is_reported() {
     *text = text.replace(documented, "");
     let (file, text) = sources
         .iter_mut()
-        .find(|(f, _)| f == "src/config/shared.rs")
+        .find(|(f, _)| f == "src/core/learner_config/shared.rs")
         .unwrap();
     let documented =
         "    /// eta = exp(p) + 1e-8: one Adam step changes eta by a factor of about\n";

@@ -11,15 +11,15 @@
 #[path = "golden/compare.rs"]
 mod compare;
 
-use agent::algo::dual::positive;
-use agent::algo::estep::{exact_estep, sampled_estep};
-use agent::algo::movmpo::{UnrollTargetInputs, unroll_targets};
-use agent::algo::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
-use agent::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
-use agent::algo::vmpo_estep::{StepOneInputs, TopK, advantage_estep};
-use agent::algo::{Learner, LearnerDims, NoiseSource, SnippetBatch};
-use agent::config::LearnerConfig;
-use agent::nets::GaussianParams;
+use agent::core::algo::dual::positive;
+use agent::core::algo::estep::{exact_estep, sampled_estep};
+use agent::core::algo::movmpo::{UnrollTargetInputs, unroll_targets};
+use agent::core::algo::mstep::{KlConstraint, TrustRegion, categorical_mstep, gaussian_mstep};
+use agent::core::algo::retrace::{RetraceInputs, importance_weights, retrace_targets};
+use agent::core::algo::vmpo_estep::{StepOneInputs, TopK, advantage_estep};
+use agent::core::algo::{Learner, LearnerDims, NoiseSource, SnippetBatch};
+use agent::core::learner_config::LearnerConfig;
+use agent::core::nets::GaussianParams;
 use compare::{
     assert_close, assert_close_scalar, assert_close_vec, golden, named_arrays, scalar, tensor,
     vector,

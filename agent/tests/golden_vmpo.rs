@@ -11,9 +11,9 @@
 #[path = "golden/compare.rs"]
 mod compare;
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::LearnerConfig;
-use agent::nets::ActionKind;
+use agent::core::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::core::learner_config::LearnerConfig;
+use agent::core::nets::ActionKind;
 use compare::{assert_close, assert_close_vec, golden, named_arrays, tensor};
 use serde_json::Value;
 use tch::{Device, Kind, Tensor};
@@ -22,7 +22,7 @@ use tch::{Device, Kind, Tensor};
 #[track_caller]
 fn check_step(
     learner: &Learner,
-    stats: &agent::algo::LearnerStats,
+    stats: &agent::core::algo::LearnerStats,
     want_step: &Value,
     step: usize,
 ) {

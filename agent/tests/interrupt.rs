@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::Child;
 use std::time::{Duration, Instant};
 
-use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::runtime::checkpoint::run::latest_checkpoint;
 use cli::{agent_cmd, run_dir_in, smoke_dst, summary, tensorboard_scalars};
 
 /// Wait until the run in `runs` has a checkpoint past `learner_steps`, then send `signal`.

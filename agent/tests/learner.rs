@@ -101,12 +101,12 @@ fn policy_snapshot_drives_an_actor_policy() {
     let _rng = common::exclusive_rng();
     let learner = continuous_learner();
     let mut actor =
-        agent::nets::ActorPolicy::new(&learner.config().network, learner.dims(), Device::Cpu);
+        agent::core::nets::ActorPolicy::new(&learner.config().network, learner.dims(), Device::Cpu);
     actor.load(&learner.policy_snapshot()).unwrap();
     let obs = Tensor::randn([4, 3], (Kind::Float, Device::Cpu));
     assert!(
         actor
-            .act(&obs, agent::nets::Acting::Deterministic)
+            .act(&obs, agent::core::nets::Acting::Deterministic)
             .actions
             .equal(&learner.act(&obs, true).actions)
     );
@@ -124,7 +124,10 @@ fn policy_snapshot_drives_an_actor_policy() {
 /// `random_batch` where snippet 1 terminates at step 0 and snippet 2 is cut by a time
 /// limit at step 0 (discount 1, so s_1 is its real last observation); the later steps
 /// of both are padding, as the adder writes it.
-fn padded_batch(learner: &agent::algo::Learner, seed: i64) -> agent::algo::SnippetBatch {
+fn padded_batch(
+    learner: &agent::core::algo::Learner,
+    seed: i64,
+) -> agent::core::algo::SnippetBatch {
     let batch = random_batch(learner, seed);
     let t = batch.len();
     for b in [1, 2] {
@@ -135,7 +138,7 @@ fn padded_batch(learner: &agent::algo::Learner, seed: i64) -> agent::algo::Snipp
             .behaviour_log_probs
             .narrow(0, 1, t - 1)
             .select(1, b)
-            .fill_(f64::from(agent::replay::adder::PAD_LOG_PROB));
+            .fill_(f64::from(agent::core::replay::adder::PAD_LOG_PROB));
     }
     let _ = batch.discounts.get(0).select(0, 1).fill_(0.0);
     batch
@@ -143,10 +146,10 @@ fn padded_batch(learner: &agent::algo::Learner, seed: i64) -> agent::algo::Snipp
 
 /// `batch` with observation rows `from..=T` of snippet `b` replaced by large noise.
 fn scramble_rows(
-    batch: &agent::algo::SnippetBatch,
+    batch: &agent::core::algo::SnippetBatch,
     b: i64,
     from: i64,
-) -> agent::algo::SnippetBatch {
+) -> agent::core::algo::SnippetBatch {
     let observations = batch.observations.copy();
     let rows = observations.size()[0] - from;
     let noise = Tensor::randn([rows, observations.size()[2]], (Kind::Float, Device::Cpu)) * 50.0;
@@ -154,7 +157,7 @@ fn scramble_rows(
         .narrow(0, from, rows)
         .select(1, b)
         .copy_(&noise);
-    agent::algo::SnippetBatch {
+    agent::core::algo::SnippetBatch {
         observations,
         actions: batch.actions.copy(),
         rewards: batch.rewards.copy(),
@@ -167,15 +170,15 @@ fn scramble_rows(
 /// Two steps of identically built learners on `a` and `b`, with the same random draws:
 /// equal when the batches differ only where the learner must not look.
 fn same_steps(
-    make: impl Fn() -> agent::algo::Learner,
-    a: &agent::algo::SnippetBatch,
-    b: &agent::algo::SnippetBatch,
+    make: impl Fn() -> agent::core::algo::Learner,
+    a: &agent::core::algo::SnippetBatch,
+    b: &agent::core::algo::SnippetBatch,
 ) -> bool {
-    let run = |batch: &agent::algo::SnippetBatch| {
+    let run = |batch: &agent::core::algo::SnippetBatch| {
         let mut learner = make();
         tch::manual_seed(99);
         let stats: Vec<_> = (0..2).map(|_| learner.step(batch).unwrap()).collect();
-        let strip = |s: &agent::algo::LearnerStats| {
+        let strip = |s: &agent::core::algo::LearnerStats| {
             (
                 s.critic_loss.clone(),
                 s.temperature.clone(),

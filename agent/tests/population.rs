@@ -12,12 +12,12 @@
 
 mod common;
 
-use agent::algo::{Learner, LearnerDims, LearnerStats, NoiseSource, SnippetBatch};
-use agent::config::{
+use agent::core::algo::{Learner, LearnerDims, LearnerStats, NoiseSource, SnippetBatch};
+use agent::core::learner_config::{
     Algorithm, KlConstraint, LearnerConfig, ObjectiveConfig, ObjectiveSource, ObjectiveWeight,
 };
-use agent::nets::{ActionKind, NamedArray};
-use agent::random::{Purpose, StreamKey};
+use agent::core::nets::{ActionKind, NamedArray};
+use agent::core::random::{Purpose, StreamKey};
 use common::small_config;
 use tch::{Device, Kind, Tensor};
 

@@ -14,13 +14,13 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use agent::algo::preferences::parse_setting;
-use agent::checkpoint::run::{RunProgress, write_run_checkpoint};
+use agent::core::algo::preferences::parse_setting;
 use agent::env::connection::ConnectionConfig;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::eval::evaluate_checkpoint_at;
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, train};
+use agent::runtime::checkpoint::run::{RunProgress, write_run_checkpoint};
+use agent::runtime::eval::evaluate_checkpoint_at;
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train};
 use cli::python_json;
 use tch::Tensor;
 
@@ -67,7 +67,7 @@ async fn agent_and_python_agree(
     agent_act(&run, &obs_path, &actions_path, epsilon);
 
     let episodes = 4;
-    // agent/src/eval.rs: seeds disjoint from training's, at most env.num_envs instances.
+    // agent/src/runtime/eval.rs: seeds disjoint from training's, at most env.num_envs instances.
     let seed = cfg_seed + 1_000_000;
     let num_envs = episodes.clamp(1, num_envs);
     let mut args: Vec<String> = epsilon.map_or(vec![], |e| vec!["--epsilon".into(), e.into()]);

@@ -12,8 +12,8 @@ use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::default_python;
+use agent::runtime::checkpoint::run::latest_checkpoint;
 use cli::{run_dir_in, smoke_dst};
 
 /// `server <i> up at <address> (pid <pid>, node <id>)` lines of the launcher: (index, pid).

@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::runtime::checkpoint::run::latest_checkpoint;
 use cli::{
     agent_cmd, copy_dir, episode_rows, learner_rows, learner_steps, run_dir_in, smoke_dst, summary,
     tensorboard_scalars,

@@ -44,8 +44,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use agent::checkpoint::run::{RunProgress, latest_checkpoint};
 use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::runtime::checkpoint::run::{RunProgress, latest_checkpoint};
 use cli::{agent_cmd, episode_rows, learner_steps, report_figures, run_dir_in, summary, test_seed};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -11,8 +11,8 @@
 
 mod common;
 
-use agent::algo::{Learner, SnippetBatch};
-use agent::config::{Algorithm, TemperatureParameterization};
+use agent::core::algo::{Learner, SnippetBatch};
+use agent::core::learner_config::{Algorithm, TemperatureParameterization};
 use tch::{Device, Kind, Tensor};
 
 const STATES: i64 = 32;

@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use agent::checkpoint::run::latest_checkpoint;
 use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::runtime::checkpoint::run::latest_checkpoint;
 use cli::{agent_cmd, copy_dir, run_dir_in, smoke_dst};
 
 /// Three settings, one seed, 2500 env steps each (about 2 s a job on 2 cores), a

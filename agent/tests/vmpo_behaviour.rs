@@ -9,8 +9,8 @@
 
 mod common;
 
-use agent::algo::{Learner, SnippetBatch};
-use agent::config::{Algorithm, LearnerConfig};
+use agent::core::algo::{Learner, SnippetBatch};
+use agent::core::learner_config::{Algorithm, LearnerConfig};
 use tch::{Device, Kind, Tensor};
 
 const UNROLLS: i64 = 64;

@@ -5,13 +5,13 @@
     policy = load_policy("runs/pendulum__mompo__0__20261125-091122")  # its latest checkpoint
     action = policy.act(obs)  # the env action, deterministic: the mean / the most likely
 
-A checkpoint is a directory the agent writes (agent/src/checkpoint.rs): `state.json`
+A checkpoint is a directory the agent writes (agent/src/runtime/checkpoint/mod.rs): `state.json`
 carries the network config and the dimensions the learner was built for, and
 `params.safetensors` the online policy's parameters under `policy/<VarStore name>`
 (the target networks, critics and duals there are ignored). A run directory means its
 latest checkpoint (`checkpoints/latest.json`). Needs torch and safetensors.
 
-The networks are transcribed from agent/src/nets (mlp.rs, policy.rs, torso.rs):
+The networks are transcribed from agent/src/core/nets (mlp.rs, policy.rs, torso.rs):
 - torso: Linear -> LayerNorm (eps 1e-5) -> tanh, then Linear -> ELU per further size of
   `network.policy_layers` (parameters `torso.linear_0`, `torso.layer_norm`,
   `torso.linear_<i>`);
@@ -60,7 +60,7 @@ from torch import nn
 
 from env_server.client import RemoteEnv
 
-FORMAT_VERSION = 1  # agent/src/checkpoint.rs FORMAT_VERSION
+FORMAT_VERSION = 1  # agent/src/runtime/checkpoint/mod.rs FORMAT_VERSION
 PREFIX = "policy/policy."  # the checkpoint's "policy/" and the VarStore's root "policy"
 
 
@@ -88,7 +88,7 @@ class _Policy(nn.Module):
     encoder: `encoder` (an MLP as Torso) on the whole observation, `latent` (Linear) to
     the latent's mean and log std (clamped to [-5, 2]), and `torso` on [z,
     proprioception], the proprioception being the leaves whose name lacks
-    `reference_match` (agent/src/nets/torso.rs). Parameters sit at the policy's root,
+    `reference_match` (agent/src/core/nets/torso.rs). Parameters sit at the policy's root,
     as in the agent's VarStore."""
 
     #: An ε-conditioned policy's preference features [F], appended to every observation
@@ -248,7 +248,7 @@ def load_policy(
 
 def preference_features(config: dict[str, Any], dims: dict[str, Any], epsilon: dict[str, float] | None) -> list[float]:
     """The input features of preference `epsilon` for a learner `config` (`[]` when it
-    is not conditioned), transcribed from agent/src/algo/preferences.rs: the grid is
+    is not conditioned), transcribed from agent/src/core/algo/preferences/mod.rs: the grid is
     the product of the conditioned objectives' ε lists in env objective order (earlier
     objectives vary slowest), and each conditioned objective's feature is log ε scaled
     so that its list spans [-1, 1]. A partial `epsilon` keeps the first grid point's
@@ -332,7 +332,7 @@ def evaluate(
     `terminated`, `truncated`, and `env_index`; episodes ending at the same step come in
     instance order. `agent eval --episodes N` on a run is this with num_envs =
     min(N, the run's env.num_envs), seed = the run's seed + 1000000 and the run's
-    env.kwargs (agent/src/eval.rs). Connection keywords (tls_ca, token, ...) and env
+    env.kwargs (agent/src/runtime/eval.rs). Connection keywords (tls_ca, token, ...) and env
     kwargs go to RemoteEnv.
     """
     envs = [RemoteEnv(address, env_id, seed + i, **kwargs) for i in range(num_envs)]

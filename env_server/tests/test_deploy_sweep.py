@@ -51,7 +51,7 @@ def sweep() -> list[Manifest]:
 
 
 def _sweep_jobs(text: str) -> int:
-    """How many runs a sweep file makes (settings x seeds), as agent/src/sweep/config.rs counts them."""
+    """How many runs a sweep file makes (settings x seeds), as agent/src/sweep/file.rs counts them."""
     import tomllib
 
     cfg = tomllib.loads(text)

@@ -1,6 +1,6 @@
 """env_server.trained_policy against checkpoints written here the way the agent writes
-them (safetensors' numpy API, tensor names and state.json as agent/src/checkpoint.rs has
-them), checked against a numpy transcription of agent/src/nets and a hand-derived case.
+them (safetensors' numpy API, tensor names and state.json as agent/src/runtime/checkpoint/mod.rs has
+them), checked against a numpy transcription of agent/src/core/nets and a hand-derived case.
 """
 
 from __future__ import annotations
@@ -194,7 +194,7 @@ def test_flat_obs_keeps_the_order_the_server_sent_the_leaves_in() -> None:
 
 
 def test_mocap_policy_matches_a_numpy_transcription(tmp_path: pathlib.Path) -> None:
-    """agent/src/nets/torso.rs MocapTorso: encoder MLP on the whole observation, latent
+    """agent/src/core/nets/torso.rs MocapTorso: encoder MLP on the whole observation, latent
     Linear to [mean, log std], the policy MLP on [z, proprioception], where the
     proprioception is every leaf whose name lacks "reference" (here indices 0, 1, 5)."""
     rng = np.random.default_rng(4)
@@ -243,7 +243,7 @@ def test_mocap_policy_matches_a_numpy_transcription(tmp_path: pathlib.Path) -> N
 def test_preference_features_follow_the_agents_grid() -> None:
     """Hand-derived: a conditioned objective's log ε spans [-1, 1] over its list; the
     default is the grid's middle point, with earlier objectives (env order) varying
-    slowest, as agent/src/algo/preferences.rs builds it."""
+    slowest, as agent/src/core/algo/preferences/mod.rs builds it."""
     dims = {"reward_names": ["time", "treasure"]}
     objectives = [{"name": "time", "epsilon": 0.02}, {"name": "treasure", "epsilon": 0.1}]
     one = {"objectives": objectives, "conditioning": {"epsilon": {"treasure": [0.005, 0.05, 0.5]}}}

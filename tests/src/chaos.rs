@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use agent::env::pool::EnvFaults;
-use agent::train::TrainSummary;
+use agent::runtime::train::TrainSummary;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -7,15 +7,15 @@ use std::path::Path;
 use std::pin::pin;
 use std::time::{Duration, Instant};
 
-use agent::checkpoint::run::latest_checkpoint;
 use agent::env::Env;
 use agent::env::MakeOptions;
 use agent::env::deadline::DeadlineConfig;
+use agent::env::error::StatusKind;
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::LocalServer;
-use agent::error::StatusKind;
-use agent::run_config::TrainConfig;
-use agent::train::TrainSummary;
+use agent::runtime::checkpoint::run::latest_checkpoint;
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::TrainSummary;
 
 use crate::proxy::{Direction, Fault, FaultProxy};
 

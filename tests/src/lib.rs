@@ -7,7 +7,7 @@ use std::path::Path;
 
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
+use agent::runtime::run_config::TrainConfig;
 use agent::sweep::{FrontSummary, SweepConfig};
 
 /// The base seed of a learning test: 0, or `MO_MPO_TEST_SEED` when set. A learning

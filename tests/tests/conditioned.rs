@@ -8,9 +8,9 @@ use std::path::Path;
 
 use agent::env::connection::ConnectionConfig;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::eval::evaluate_checkpoint_at;
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, train};
+use agent::runtime::eval::evaluate_checkpoint_at;
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_run_traces_a_front_over_its_preference_grid() {
@@ -119,7 +119,7 @@ async fn one_run_traces_a_front_over_its_preference_grid() {
     let observations = runs.path().join("cells.json");
     std::fs::write(&observations, serde_json::to_string(&cells).unwrap()).unwrap();
     let act = |v: f64| {
-        agent::act::act_on_file(&summary.run_dir, &observations, None, Some(&at(v)))
+        agent::runtime::act::act_on_file(&summary.run_dir, &observations, None, Some(&at(v)))
             .unwrap()
             .unwrap()
     };
@@ -129,7 +129,7 @@ async fn one_run_traces_a_front_over_its_preference_grid() {
     assert_ne!(near, far, "the same actions at ratios 0.25 and 25");
     let with_feature = runs.path().join("with_feature.json");
     std::fs::write(&with_feature, "[[0, 0, 0.5]]").unwrap();
-    let err = agent::act::act_on_file(&summary.run_dir, &with_feature, None, None)
+    let err = agent::runtime::act::act_on_file(&summary.run_dir, &with_feature, None, None)
         .unwrap_err()
         .to_string();
     assert!(err.contains("expected shape [B, 2]"), "{err}");

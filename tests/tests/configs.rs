@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
-use agent::algo::objectives::{LearnerDims, bind_config, check_declared};
+use agent::core::algo::objectives::{LearnerDims, bind_config, check_declared};
 use agent::env::{Env, MakeOptions};
-use agent::run_config::TrainConfig;
+use agent::runtime::run_config::TrainConfig;
 use agent::sweep::SweepConfig;
 use integration_tests::Harness;
 

@@ -13,10 +13,10 @@ use std::time::Duration;
 
 use agent::env::connection::ConnectionConfig;
 use agent::env::discovery::ServerAddress;
+use agent::env::error::EnvError;
 use agent::env::pool::ServerPool;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::error::EnvError;
-use agent::train::{TrainOptions, TrainSummary, train};
+use agent::runtime::train::{TrainOptions, TrainSummary, train};
 use hickory_server::Server;
 use hickory_server::net::runtime::TokioRuntimeProvider;
 use hickory_server::proto::rr::rdata::{A, SOA};

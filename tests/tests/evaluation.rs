@@ -10,8 +10,8 @@
 use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, TrainSummary, train};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, TrainSummary, train};
 use integration_tests::{curve, smoke_config};
 
 /// `eval.csv` as a header and rows of numbers.

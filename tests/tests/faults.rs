@@ -14,8 +14,8 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, TrainSummary, train, train_population};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, TrainSummary, train, train_population};
 use integration_tests::chaos::{Chaos, SoakReport};
 use integration_tests::faults::{
     FaultBed, Injection, assert_complete, run_with_faults, test_deadlines, wait_for_chunks,

@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::train::{TrainOptions, train};
+use agent::runtime::train::{TrainOptions, train};
 use integration_tests::{episode_column, report_figures, smoke_config, test_seed, with_seed};
 
 /// Mean of column `name` over rows `range` of a run's episodes.csv.

@@ -7,8 +7,8 @@
 use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, train};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train};
 use integration_tests::{episode_column, mean};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -7,8 +7,8 @@
 use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, TrainSummary, train};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, TrainSummary, train};
 use integration_tests::{episode_column, mean};
 
 static ONE_RUN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());

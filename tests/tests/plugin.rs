@@ -11,8 +11,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, train};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train};
 
 fn example() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/plugin")

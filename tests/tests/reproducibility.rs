@@ -1,7 +1,7 @@
 //! Reproducibility: the same config and seed give the same learning curve (one actor),
 //! alone or while other runs train in the same process, as a sweep's runs do.
 //!
-//! Every draw of a run comes from its own keyed streams (`agent::random`), so a run
+//! Every draw of a run comes from its own keyed streams (`agent::core::random`), so a run
 //! beside another must match the same run alone: the categorical DST run checks
 //! initialisation and actor sampling, the Gaussian pendulum run the learner's noise.
 //!
@@ -14,8 +14,8 @@
 use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, train, train_population};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train, train_population};
 use integration_tests::{Curve, curve, short_pendulum, smoke_config};
 
 async fn run(cfg: TrainConfig, server: &LocalServer) -> Curve {

@@ -3,9 +3,9 @@
 use std::path::Path;
 
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::pareto::hypervolume;
+use agent::report::pareto::hypervolume;
+use agent::runtime::train::{TrainOptions, train};
 use agent::sweep::SweepConfig;
-use agent::train::{TrainOptions, train};
 use integration_tests::smoke_config;
 
 /// The two settings train as one population (one batched learner, one env session)

@@ -8,11 +8,11 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use agent::config::{ObjectiveConfig, ObjectiveSource};
+use agent::core::learner_config::{ObjectiveConfig, ObjectiveSource};
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, MakeOptions};
-use agent::train::{TrainOptions, train};
+use agent::runtime::train::{TrainOptions, train};
 use integration_tests::smoke_config;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

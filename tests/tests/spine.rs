@@ -3,11 +3,11 @@
 //! Rewards are checked against the task definitions (paper appendix B.1, B.3),
 //! not against values the server produced earlier.
 
+use agent::core::spec::{AutoresetMode, Space};
+use agent::env::error::StatusKind;
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::env::{Env, HostTensor, MakeOptions, random_action};
-use agent::error::StatusKind;
-use agent::spec::{AutoresetMode, Space};
 use integration_tests::Harness;
 use rand::SeedableRng;
 

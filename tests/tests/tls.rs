@@ -13,11 +13,11 @@ mod pki;
 use std::path::{Path, PathBuf};
 
 use agent::env::connection::ConnectionConfig;
+use agent::env::error::{EnvError, StatusKind};
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::error::{EnvError, StatusKind};
-use agent::eval::evaluate_checkpoint;
-use agent::train::{TrainOptions, train};
+use agent::runtime::eval::evaluate_checkpoint;
+use agent::runtime::train::{TrainOptions, train};
 use integration_tests::smoke_config;
 use pki::{Pki, write_client_cert, write_pki};
 

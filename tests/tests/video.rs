@@ -5,13 +5,13 @@
 use std::path::Path;
 use std::process::Command;
 
+use agent::core::nets::{ActorPolicy, LearnerDims};
 use agent::env::connection::ConnectionConfig;
 use agent::env::{Env, MakeOptions};
-use agent::eval::{evaluate_checkpoint, evaluate_recorded};
-use agent::nets::{ActorPolicy, LearnerDims};
-use agent::run_config::TrainConfig;
-use agent::train::{TrainOptions, train};
-use agent::video::{Layout, VideoOptions, VideoPlan, find_ffmpeg};
+use agent::report::video::{Layout, VideoOptions, VideoPlan, find_ffmpeg};
+use agent::runtime::eval::{evaluate_checkpoint, evaluate_recorded};
+use agent::runtime::run_config::TrainConfig;
+use agent::runtime::train::{TrainOptions, train};
 use integration_tests::{Harness, smoke_config};
 use tch::Device;
 

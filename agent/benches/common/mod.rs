@@ -6,9 +6,9 @@
 //! and `arg`, `checkpoint_cost` `arg` and `median`. A step is timed as the median of `--steps` steps after warm-up steps,
 //! with the share of each phase.
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::{LearnerConfig, ObjectiveConfig, ObjectiveSource};
-use agent::nets::ActionKind;
+use agent::core::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::core::learner_config::{LearnerConfig, ObjectiveConfig, ObjectiveSource};
+use agent::core::nets::ActionKind;
 use tch::{Kind, Tensor};
 
 /// What one benchmark measures.
@@ -144,10 +144,11 @@ pub struct Prepared {
 /// every core), `--steps N`; `--batch B` and `--samples M` change the size for
 /// exploration (the default is the size the benchmark is named for).
 pub fn prepare(size: StepSize) -> Prepared {
-    agent::device::tune_allocator();
-    let threads =
-        agent::device::configure_threads(Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0));
-    let device = agent::device::learner_device();
+    agent::core::device::tune_allocator();
+    let threads = agent::core::device::configure_threads(
+        Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0),
+    );
+    let device = agent::core::device::learner_device();
     let steps: usize = arg("--steps", 20);
     let StepSize {
         name,

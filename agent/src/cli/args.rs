@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use agent::env::connection::ConnectionConfig;
-use agent::video::VideoOptions;
+use agent::report::video::VideoOptions;
 use clap::Args;
 
 /// How to reach servers that take TLS or a bearer token (env_server's --tls-cert,

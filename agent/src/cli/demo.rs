@@ -3,10 +3,10 @@
 
 use std::time::Instant;
 
+use agent::core::spec::ClosedForm;
 use agent::env::grpc::{EnvClient, RemoteEnv};
 use agent::env::{Env, MakeOptions, random_action};
-use agent::metrics::format_vector;
-use agent::spec::ClosedForm;
+use agent::report::metrics::format_vector;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;

@@ -1,10 +1,10 @@
 //! What `agent train`, `sweep` and `eval` print when they finish (the library returns
 //! the summaries; only the binary prints them).
 
-use agent::eval::EvalReport;
-use agent::metrics::{format_temperatures, format_value, format_vector};
+use agent::report::metrics::{format_temperatures, format_value, format_vector};
+use agent::runtime::eval::EvalReport;
+use agent::runtime::train::TrainSummary;
 use agent::sweep::{FrontSummary, setting_label};
-use agent::train::TrainSummary;
 
 /// `agent train`'s closing summary.
 pub(crate) fn train(s: &TrainSummary) {
@@ -56,7 +56,7 @@ pub(crate) fn train(s: &TrainSummary) {
             Some(r) => println!(
                 "  solved ({}, mean of {} training episodes) at {} env steps, {:.1} s: {}",
                 rule.join(", "),
-                agent::solve::SOLVE_WINDOW,
+                agent::runtime::solve::SOLVE_WINDOW,
                 r.env_steps,
                 r.wall_seconds,
                 format_vector(&r.running_mean)
@@ -64,7 +64,7 @@ pub(crate) fn train(s: &TrainSummary) {
             None => println!(
                 "  not solved ({}, mean of {} training episodes)",
                 rule.join(", "),
-                agent::solve::SOLVE_WINDOW
+                agent::runtime::solve::SOLVE_WINDOW
             ),
         }
     }

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::ConfigError;
-use crate::error::EnvError;
+use crate::core::learner_config::ConfigError;
+use crate::env::error::EnvError;
 
 /// Files that secure the connections to the servers (env_server's `--tls-cert`,
 /// `--tls-client-ca` and `--auth-token-file` on the other side).

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::ConfigError;
+use crate::core::learner_config::ConfigError;
 
 /// How long each env call may wait for its answer, and what a run does about servers
 /// that miss their deadlines.

@@ -7,6 +7,7 @@
 pub mod connection;
 pub mod deadline;
 pub mod discovery;
+pub mod error;
 pub mod frames;
 pub mod grpc;
 pub mod pool;
@@ -14,8 +15,8 @@ pub mod server_process;
 
 use serde::Serialize;
 
-use crate::error::EnvError;
-use crate::spec::{AutoresetMode, DType, EnvSpec};
+use crate::core::spec::{AutoresetMode, DType, EnvSpec};
+use crate::env::error::EnvError;
 
 /// A dense host tensor: little-endian, row-major bytes plus dtype and shape.
 #[derive(Debug, Clone, PartialEq)]
@@ -233,11 +234,11 @@ pub trait Env {
 /// Uniformly random actions for all B instances: inside the Box bounds (unbounded
 /// dimensions use [-1, 1]) or uniform over the Discrete choices.
 pub fn random_action<R: rand::RngExt>(
-    space: &crate::spec::Space,
+    space: &crate::core::spec::Space,
     num_envs: usize,
     rng: &mut R,
 ) -> HostTensor {
-    use crate::spec::Space;
+    use crate::core::spec::Space;
     match space {
         Space::Box(b) => {
             let mut values = Vec::with_capacity(num_envs * b.numel());

@@ -23,7 +23,7 @@ use super::connection::{ConnectionConfig, Credentials};
 use super::deadline::{Backoff, DeadlineConfig};
 use super::discovery::{ServerAddress, ServerSource};
 use super::grpc::{EnvClient, RetryPolicy};
-use crate::error::EnvError;
+use crate::env::error::EnvError;
 
 /// One `--server` / `env.servers` entry.
 #[derive(Debug, Clone)]

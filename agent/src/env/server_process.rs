@@ -12,7 +12,7 @@ use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 
-use crate::error::EnvError;
+use crate::env::error::EnvError;
 
 /// How to start the server.
 #[derive(Debug, Clone, PartialEq)]

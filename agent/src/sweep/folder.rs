@@ -11,13 +11,13 @@ use std::time::SystemTime;
 use serde::{Deserialize, Serialize};
 
 use super::{SweepConfig, SweepError, setting_label, shard::Shard};
-use crate::checkpoint::run::latest_checkpoint;
-use crate::config::DeviceChoice;
+use crate::core::learner_config::DeviceChoice;
 use crate::env::connection::ConnectionConfig;
 use crate::env::deadline::DeadlineConfig;
-use crate::metrics::write_json_atomic;
-use crate::run_config::TrainConfig;
-use crate::run_name;
+use crate::report::metrics::write_json_atomic;
+use crate::runtime::checkpoint::run::latest_checkpoint;
+use crate::runtime::run_config::TrainConfig;
+use crate::runtime::run_name;
 
 /// The file that marks a sweep folder.
 pub const SPEC_FILE: &str = "sweep.json";
@@ -110,7 +110,7 @@ pub enum JobState {
 }
 
 /// What a sweep reads of a run's `summary.json` (a subset of
-/// [`crate::train::TrainSummary`], so unknown fields are expected).
+/// [`crate::runtime::train::TrainSummary`], so unknown fields are expected).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 pub struct RunResult {
     /// Objective names in reward order.

@@ -10,7 +10,7 @@ use std::time::SystemTime;
 
 use super::folder::{Job, JobState, SweepFolder, all_jobs};
 use super::{FrontPoint, FrontReport, FrontSummary, SweepError};
-use crate::run_name;
+use crate::runtime::run_name;
 
 /// Report the sweep folders `dirs` (one sweep, or shards of one) into `out`: by
 /// default the folder itself when there is one, else a new `sweep__<name>__<time>`

@@ -17,13 +17,13 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
-mod config;
+mod file;
 mod folder;
 mod merge;
 mod shard;
 
-pub use crate::front::{FrontPoint, FrontReport, FrontSummary, seeds};
-pub use config::{Grid, GridKind, RatioPlot, SweepConfig, Values, apply};
+pub use crate::report::front::{FrontPoint, FrontReport, FrontSummary, seeds};
+pub use file::{Grid, GridKind, RatioPlot, SweepConfig, Values, apply};
 pub use folder::{
     BASE_FILE, Job, JobState, RunResult, SPEC_FILE, SWEEP_FILE, SweepFolder, all_jobs,
 };
@@ -32,12 +32,12 @@ pub use shard::{Shard, ShardError};
 
 use futures::StreamExt;
 
-use crate::algo::population::unbatchable;
-use crate::config::ConfigError;
-use crate::metrics::format_vector;
-use crate::run_config::TrainConfig;
-use crate::train::{TrainError, TrainOptions, train_population};
-use crate::video::{VideoOptions, VideoPlan};
+use crate::core::algo::population::unbatchable;
+use crate::core::learner_config::ConfigError;
+use crate::report::metrics::format_vector;
+use crate::report::video::{VideoOptions, VideoPlan};
+use crate::runtime::run_config::TrainConfig;
+use crate::runtime::train::{TrainError, TrainOptions, train_population};
 
 /// `pain=0.9 task=0.1`: each value rounded to 12 decimals, so that a complemented weight
 /// (1 - 0.9) does not print as 0.09999999999999998.
@@ -59,7 +59,7 @@ pub enum SweepError {
     Config(#[from] ConfigError),
     /// Measuring or writing the front failed.
     #[error(transparent)]
-    Front(#[from] crate::front::FrontError),
+    Front(#[from] crate::report::front::FrontError),
     /// A sweep file could not be read or written.
     #[error("{path}: {source}")]
     Io {

@@ -1,12 +1,12 @@
 //! Small learners and random snippet batches shared by the integration tests.
 #![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
 
-use agent::algo::{Learner, LearnerDims, SnippetBatch};
-use agent::config::{
+use agent::core::algo::{Learner, LearnerDims, SnippetBatch};
+use agent::core::learner_config::{
     Algorithm, Architecture, LearnerConfig, NetworkConfig, ObjectiveConfig, ObjectiveSource,
     ObjectiveWeight,
 };
-use agent::nets::{ActionKind, ObsLeaf};
+use agent::core::nets::{ActionKind, ObsLeaf};
 use tch::{Device, Kind, Tensor};
 
 pub const OBS: i64 = 3;

@@ -7,7 +7,7 @@ mod enums;
 mod render;
 mod syntax;
 
-use agent::run_config::TrainConfig;
+use agent::runtime::run_config::TrainConfig;
 use agent::sweep::SweepConfig;
 use render::{HEADER, dotted, inline, lookup, render};
 use syn::{Fields, Item, Type};

@@ -79,7 +79,7 @@ checkpoint periods, `run.checkpoint_replay`, `run.eval_episodes`, servers, deadl
 device).
 
 This file is generated from the doc comments of the config structs
-(`agent/src/config/`, `agent/src/run_config/`, `agent/src/sweep/config.rs`,
+(`agent/src/core/learner_config/`, `agent/src/runtime/run_config/`, `agent/src/sweep/file.rs`,
 `agent/src/env/connection.rs`, `agent/src/env/deadline.rs`) and their `Default`s; a test
 fails when it is stale or a field has no doc comment. Regenerate it after changing a config struct:
 

@@ -3,7 +3,7 @@
 //! 1e-5 absolute plus 1e-5 relative.
 #![allow(dead_code, unreachable_pub, reason = "each test file uses a subset")]
 
-use agent::nets::NamedArray;
+use agent::core::nets::NamedArray;
 use serde_json::Value;
 use tch::{Kind, Tensor};
 

@@ -22,9 +22,9 @@ mod resolve;
 
 use resolve::{lookup, read_list};
 
-/// The errors of this module live in [`crate::error`], beside the other env errors
+/// The errors of this module live in [`crate::env::error`], beside the other env errors
 /// that wrap them, so that `error` depends on nothing above it.
-pub use crate::error::DiscoveryError;
+pub use crate::env::error::DiscoveryError;
 
 /// The forms a server address may take, for error messages.
 pub const FORMS: &str = "host:port, http://host:port, https://host:port, dns:NAME:PORT, \

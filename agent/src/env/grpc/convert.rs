@@ -4,11 +4,11 @@
 
 use mo_env_proto::v1 as pb;
 
-use crate::env::{EpisodeSummary, HostTensor, NamedTensor, Observation, StepResult};
-use crate::error::EnvError;
-use crate::spec::{
+use crate::core::spec::{
     AutoresetMode, BoxSpace, ClosedForm, DType, DiscreteSpace, EnvSpec, ObjectiveSpec, Space,
 };
+use crate::env::error::EnvError;
+use crate::env::{EpisodeSummary, HostTensor, NamedTensor, Observation, StepResult};
 
 pub(super) fn missing(field: &str) -> EnvError {
     EnvError::Protocol {

@@ -1,6 +1,6 @@
 //! gRPC client for `env_server` (protocol `mo_env.v1`): the only module that sees proto types.
 //!
-//! Every proto message is converted to the plain types of [`crate::spec`] and
+//! Every proto message is converted to the plain types of [`crate::core::spec`] and
 //! [`crate::env`] here, field by field, so a protocol change breaks the build in
 //! one place. Only UNAVAILABLE is retried (with exponential backoff); every other
 //! status becomes a typed [`EnvError::Status`] carrying the server's message. Every
@@ -31,8 +31,8 @@ use super::MakeOptions;
 use super::connection::Credentials;
 use super::deadline::{CallTimes, DeadlineConfig};
 use super::discovery::ServerAddress;
-use crate::error::EnvError;
-use crate::spec::{EnvInfo, ServerVersion};
+use crate::core::spec::{EnvInfo, ServerVersion};
+use crate::env::error::EnvError;
 
 /// Largest message the client sends or accepts.
 const MAX_MESSAGE_BYTES: usize = 256 << 20;

@@ -11,10 +11,10 @@ use tokio_stream::wrappers::ReceiverStream;
 use super::convert::{named_from_proto, observation_from_proto, step_from_proto, tensor_to_proto};
 use super::status::status_error;
 use super::{EnvClient, missed};
+use crate::core::spec::EnvSpec;
 use crate::env::deadline::CallTimes;
+use crate::env::error::{EnvError, StatusKind};
 use crate::env::{Env, HostTensor, ResetResult, StepResult};
-use crate::error::{EnvError, StatusKind};
-use crate::spec::EnvSpec;
 
 /// A session on a server: B instances stepped together.
 #[derive(Debug)]

@@ -4,9 +4,9 @@ use mo_env_proto::v1 as pb;
 
 use super::RemoteEnv;
 use super::convert::{missing, tensor_from_proto};
+use crate::core::spec::DType;
+use crate::env::error::EnvError;
 use crate::env::frames::{Frames, RenderOptions};
-use crate::error::EnvError;
-use crate::spec::DType;
 
 impl RemoteEnv {
     /// The current RGB frames of some instances (capability "render"); the server

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use super::channel;
-use crate::error::{EnvError, StatusKind};
+use crate::env::error::{EnvError, StatusKind};
 
 /// Backoff schedule for UNAVAILABLE (server starting, restarting, or briefly unreachable).
 #[derive(Debug, Clone, PartialEq)]

@@ -1,0 +1,411 @@
+//! The MO-MPO learner (Algorithm 3), also running scalarized MPO (one critic on
+//! `sum_k w_k r_k`, one epsilon) through the same code.
+//!
+//! One `step` on a `SnippetBatch` of B snippets of length T does, in order:
+//! 1. **Policy evaluation** (C.2, eq. 15). The target policy draws M actions at each of
+//!    the N = (T+1)B states (noise from the learner's `NoiseSource`; all A actions for
+//!    categorical policies) and the target critic scores them: `Q' [M, N, C]`. V(s) is
+//!    their mean (pi_old-weighted sum for categorical). Retrace targets for the T*B
+//!    taken pairs use the target critic (categorical: its scores of all actions,
+//!    gathered), the target policy's log-probabilities and
+//!    c = min(1, pi_old/b). The online critic is regressed on them (0.5 * squared
+//!    error, mean over real pairs, summed over heads), one Adam step. Padding after
+//!    an episode's end (`valid` 0) is not regressed.
+//! 2. **E-step** (eqs. 32-34) on the same samples at the real states (`real_states`):
+//!    the states acted from, plus a last state bootstrapped into from a real,
+//!    non-terminal step; padding and terminal observations are never acted from, so
+//!    no policy is fitted there. Q_k is the target critic's head for learned
+//!    objectives and `-||a_env||_2` for the action norm, with a_env the action the env
+//!    executes for the sample (clipped and mapped onto its Box, as the env's reward
+//!    sees it); weights q_k and the temperature duals (`estep.rs`).
+//! 3. **M-step** (eqs. 16-20): weighted maximum likelihood with the decoupled trust
+//!    region (`mstep.rs`); one Adam step on the policy and one on all duals, then the
+//!    dual floor (`dual.rs`).
+//! 4. Every `target_update_period` steps the target networks are copied from the online ones.
+//!
+//! **ε-conditioned** (`learner.conditioning`, `preferences.rs`): every snippet is trained
+//! at one grid point ε_g, drawn for it (relabelling) or the one it was collected with;
+//! its states' preference features say which, so policy, critics and Retrace all see
+//! (s, ε_g), and the E-step solves eq. 34 per grid point with that point's eta_g.
+//! The M-step's trust region (alpha) is shared by all grid points.
+//!
+//! Shape legend: T snippet length, B snippets, N = (T+1)B states, M samples, D action
+//! dims, A discrete actions, K objectives, C critics.
+
+use super::batch::SnippetBatch;
+use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};
+use super::objectives::{QSource, action_norm_q};
+use super::preferences::{StatePreferences, collected_index, relabel};
+use super::projection::{Bounds, kl_ratio, project};
+use super::real_states::{gather_states, masked_half_mse, real_states};
+use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
+use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
+use super::update::StepMeasures;
+use crate::core::nets::{ActionKind, PolicyOutput};
+use crate::core::random::Purpose;
+use std::time::Instant;
+use tch::{Kind, Tensor};
+
+impl Learner {
+    /// Q-values for the E-step, `[.., M, N, K]`, from critic heads and closed forms.
+    fn estep_q(&self, critic_q: &Tensor, actions: &Tensor) -> Tensor {
+        let columns: Vec<Tensor> = self
+            .bound
+            .objectives
+            .iter()
+            .map(|o| match o.source {
+                QSource::Critic { head } => critic_q.select(-1, head as i64),
+                QSource::ActionNorm => action_norm_q(actions, self.dims.action_bounds.as_ref()),
+            })
+            .collect();
+        Tensor::stack(&columns, -1)
+    }
+
+    /// One MO-MPO step of every member (critic update, E-step, M-step, duals,
+    /// target update) on its checked batch; all tensors are member-first.
+    pub(super) fn mpo_step(
+        &mut self,
+        batches: &[SnippetBatch],
+    ) -> Result<Vec<LearnerStats>, LearnerError> {
+        let start = Instant::now();
+        let p = self.members.count();
+        let (t_len, b) = (batches[0].len(), batches[0].batch_size());
+        let n = (t_len + 1) * b;
+        let (batch, preferences) = self.stack_batches(batches, t_len);
+        let obs_all = batch.observations.reshape([p, n, -1]);
+        let obs_taken = obs_all.narrow(1, 0, t_len * b);
+        let act_taken = batch.actions.flatten(1, 2);
+        let heads = self.bound.critic_names.len() as i64;
+        let noise = match self.dims.action {
+            ActionKind::Continuous { dim } => {
+                Some(self.member_noise(&[self.cfg.mpo.num_samples, n, dim])?)
+            }
+            ActionKind::Discrete { .. } => None,
+        };
+        let Critics::Q {
+            online: critic,
+            target: target_critic,
+            ..
+        } = &self.critics
+        else {
+            unreachable!("MPO learners are built with Q critics")
+        };
+
+        // 1. Policy evaluation with Retrace (C.2).
+        let eval = tch::no_grad(|| {
+            let target_out = self.target_policy.forward_members(&obs_all, None);
+            let (samples, critic_q, v_all, log_prior) = match &target_out {
+                PolicyOutput::Gaussian(g) => {
+                    let noise = noise
+                        .as_ref()
+                        .expect("Gaussian policies have continuous actions");
+                    let samples = g.mean.unsqueeze(1) + noise * g.std.unsqueeze(1);
+                    let q = target_critic.forward_samples_members(&obs_all, &samples);
+                    let v = q.mean_dim(1, false, Kind::Float);
+                    (samples, q, v, None)
+                }
+                PolicyOutput::Categorical(logits) => {
+                    let q = target_critic.forward_all_actions_members(&obs_all);
+                    let log_prior = logits.log_softmax(-1, Kind::Float).transpose(1, 2);
+                    let v =
+                        (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(1, false, Kind::Float);
+                    let a = logits.size()[2];
+                    let all = Tensor::arange(a, (Kind::Int64, self.device))
+                        .reshape([1, a, 1])
+                        .expand([p, a, n], false);
+                    (all, q, v, Some(log_prior))
+                }
+            };
+            let v_next = v_all.reshape([p, t_len + 1, b, heads]).narrow(1, 1, t_len);
+            let q_taken = match &log_prior {
+                // Every action's Q is scored already: the taken ones are a gather.
+                Some(_) => {
+                    let index = act_taken
+                        .reshape([p, 1, t_len * b, 1])
+                        .expand([p, 1, t_len * b, heads], false);
+                    critic_q
+                        .narrow(2, 0, t_len * b)
+                        .gather(1, &index, false)
+                        .squeeze_dim(1)
+                }
+                None => target_critic.forward_members(&obs_taken, &act_taken),
+            }
+            .reshape([p, t_len, b, heads]);
+            let target_log_probs = target_out
+                .narrow_states(t_len * b)
+                .log_prob(&act_taken)
+                .reshape([p, t_len, b]);
+            // c = 0 at padding cuts the trace exactly (PAD_LOG_PROB alone leaves ~e^-60).
+            let importance =
+                importance_weights(&target_log_probs, &batch.behaviour_log_probs) * &batch.valid;
+            // Retrace runs along time: members join the batch axis.
+            let time_first = |t: &Tensor| t.transpose(0, 1);
+            let targets = retrace_targets(&RetraceInputs {
+                q_taken: &time_first(&q_taken),
+                v_next: &time_first(&v_next),
+                rewards: &time_first(&self.critic_rewards(&batch.rewards)),
+                discounts: &time_first(&batch.discounts),
+                importance: &time_first(&importance),
+                gamma: self.cfg.mpo.discount,
+            });
+            (
+                target_out,
+                samples,
+                critic_q,
+                log_prior,
+                time_first(&targets).reshape([p, t_len * b, heads]),
+            )
+        });
+        let (target_out, samples, critic_q, log_prior, targets) = eval;
+        let q_online = critic.forward_members(&obs_taken, &act_taken);
+        let per_head =
+            masked_half_mse(&(q_online - &targets), &batch.valid.reshape([p, t_len * b]));
+        self.update_critics(&per_head.sum(Kind::Float));
+        let policy_evaluation_ms = ms_since(start, self.device);
+
+        // The E- and M-steps see only real states (all of them, in most batches).
+        let real = real_states(&batch.valid, &batch.discounts);
+        let preferences = match (&real.index, preferences) {
+            (Some(index), Some(pr)) => Some(pr.rows(&index.get(0), &self.conditioned_epsilon())),
+            (_, pr) => pr,
+        };
+        let (obs_real, target_out, samples, critic_q, log_prior) = match &real.index {
+            None => (obs_all, target_out, samples, critic_q, log_prior),
+            Some(index) => (
+                gather_states(&obs_all, index, 1),
+                target_out.member_rows(index),
+                gather_states(&samples, index, 2),
+                gather_states(&critic_q, index, 2),
+                log_prior.map(|lp| gather_states(&lp, index, 2)),
+            ),
+        };
+        let states = match &preferences {
+            Some(pr) => StateMean::PerGridPoint(&pr.state_weight),
+            None => StateMean::Members(&real.weight),
+        };
+
+        // 2. E-step (eqs. 32-34).
+        let start = Instant::now();
+        let q = self.estep_q(&critic_q, &samples);
+        let estep = self.estep(&q, log_prior.as_ref(), preferences.as_ref(), states);
+        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
+        let e_step_ms = ms_since(start, self.device);
+
+        // 3. M-step (eqs. 16-20) and dual updates. A conditioned learner's M-step
+        // averages over all its states.
+        let start = Instant::now();
+        let online_out = self.policy.forward_members(&obs_real, None);
+        let fit_states = match preferences {
+            Some(_) => StateMean::Uniform,
+            None => states,
+        };
+        let policy_kl = self.fit_policy(
+            &online_out,
+            &target_out,
+            &samples,
+            &weights,
+            &estep.temperature_loss,
+            fit_states,
+        );
+        self.project_policy(&obs_real, &target_out, fit_states);
+        let m_step_ms = ms_since(start, self.device);
+
+        // 4. Target networks.
+        let value_mean = states.over_states(&q.mean_dim(1, false, Kind::Float));
+        self.finish_members(StepMeasures {
+            critic_loss: per_head,
+            estep_kl: estep.kl,
+            value_mean,
+            policy_kl,
+            timings: PhaseTimings {
+                policy_evaluation_ms,
+                e_step_ms,
+                m_step_ms,
+                target_update_ms: 0.0,
+            },
+        })
+    }
+
+    /// The members' batches stacked member-first (on the learner's device), with the
+    /// observations as the step trains on them and, for an ε-conditioned learner (one
+    /// member), each state's grid point.
+    pub(super) fn stack_batches(
+        &self,
+        batches: &[SnippetBatch],
+        t_len: i64,
+    ) -> (SnippetBatch, Option<StatePreferences>) {
+        let batches: Vec<SnippetBatch> = batches.iter().map(|b| b.to_device(self.device)).collect();
+        let (first_obs, preferences) = self.preferences_of(&batches[0].observations, t_len);
+        let stack = |field: fn(&SnippetBatch) -> &Tensor| {
+            Tensor::stack(&batches.iter().map(field).collect::<Vec<_>>(), 0)
+        };
+        let observations = match preferences {
+            Some(_) => first_obs.unsqueeze(0),
+            None => stack(|b| &b.observations),
+        };
+        (
+            SnippetBatch {
+                observations,
+                actions: stack(|b| &b.actions),
+                rewards: stack(|b| &b.rewards),
+                discounts: stack(|b| &b.discounts),
+                behaviour_log_probs: stack(|b| &b.behaviour_log_probs),
+                valid: stack(|b| &b.valid),
+            },
+            preferences,
+        )
+    }
+
+    /// Every member's sampling noise of `shape` for this step, `[P, ..shape]`.
+    fn member_noise(&mut self, shape: &[i64]) -> Result<Tensor, LearnerError> {
+        let (device, step) = (self.device, self.step);
+        let draws = self
+            .noise
+            .iter_mut()
+            .map(|source| source.standard_normal(shape, device, step))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Tensor::stack(&draws, 0))
+    }
+
+    /// The batch's observations `[T+1, B, O]` as the step trains on them, and for an
+    /// ε-conditioned learner the grid point of each of the N = (T+1)B states: drawn
+    /// per snippet from the `LearnerPreference` stream at this step and written into
+    /// the features (relabelling), or read back from them.
+    fn preferences_of(
+        &self,
+        observations: &Tensor,
+        t_len: i64,
+    ) -> (Tensor, Option<StatePreferences>) {
+        let Some(c) = &self.conditioned else {
+            return (observations.shallow_clone(), None);
+        };
+        let (observations, index) = if c.relabel {
+            let b = observations.size()[1];
+            let mut stream = self.stream(Purpose::LearnerPreference);
+            let drawn: Vec<i64> = (0..b).map(|_| c.grid.draw(&mut stream) as i64).collect();
+            let index = Tensor::from_slice(&drawn).to_device(self.device);
+            (relabel(observations, &index, &c.features), index)
+        } else {
+            (
+                observations.shallow_clone(),
+                collected_index(observations, &c.features),
+            )
+        };
+        // Rows are (t, b) t-major, so every state of snippet b has its index.
+        let per_state = index.repeat([t_len + 1]);
+        (
+            observations,
+            Some(StatePreferences::new(per_state, &c.epsilon)),
+        )
+    }
+
+    /// The E-step on `q [P, M, N, K]` (with `log_prior [P, A, N]`: exact, categorical),
+    /// with each member's ε and eta per objective, or (conditioned, one member) each
+    /// state's grid point's.
+    fn estep(
+        &self,
+        q: &Tensor,
+        log_prior: Option<&Tensor>,
+        preferences: Option<&StatePreferences>,
+        states: StateMean<'_>,
+    ) -> EStepOutput {
+        let k = self.bound.objectives.len() as i64;
+        let temperature = self.duals.temperature();
+        let (temperature, epsilon) = match preferences {
+            None => (
+                temperature.reshape([-1, 1, k]),
+                self.epsilon.reshape([-1, 1, k]),
+            ),
+            Some(p) => (
+                p.temperature(&temperature.reshape([-1, k])),
+                p.epsilon.shallow_clone(),
+            ),
+        };
+        match log_prior {
+            None => sampled_estep_with(q, &temperature, &epsilon, states),
+            Some(prior) => exact_estep_with(q, prior, &temperature, &epsilon, states),
+        }
+    }
+
+    /// Holds each member's policy within `mpo.max_kl_ratio` times its trust region
+    /// after the M-step (`projection.rs`), measured as the M-step measures the KL;
+    /// keeps the fraction of the step each member kept for the step's statistics.
+    fn project_policy(&mut self, obs: &Tensor, target: &PolicyOutput, states: StateMean<'_>) {
+        let s = self.settings;
+        let Some(max_ratio) = s.max_kl_ratio else {
+            return;
+        };
+        let bounds = Bounds {
+            beta_mean: s.beta_mean,
+            beta_cov: s.beta_cov,
+            beta_categorical: s.beta_categorical,
+            constraint: s.kl_constraint,
+        };
+        let policy = &self.policy;
+        let kept = project(
+            &self.policy_vs,
+            &self.target_policy_vs,
+            self.members,
+            max_ratio,
+            || kl_ratio(&policy.forward_members(obs, None), target, &bounds, states),
+        );
+        self.policy_step_kept = Some(kept);
+    }
+
+    /// `[G, K]` ε table of a conditioned learner.
+    fn conditioned_epsilon(&self) -> Tensor {
+        self.conditioned
+            .as_ref()
+            .map(|c| c.epsilon.shallow_clone())
+            .expect("only conditioned learners have state preferences")
+    }
+
+    /// Policy improvement only (E-step, M-step, duals) on given Q-values of the target
+    /// policy's samples, for bandits and tests where Q is known in closed form.
+    /// `q_fn` maps sampled actions `[M, N, D]` to Q `[M, N, K]`. An ε-conditioned
+    /// learner trains each state at a grid point, as `step` trains each snippet
+    /// (`obs [N, O + F]` carries the features it reads back or overwrites).
+    /// Returns (temperatures, policy KL (KL_mu, KL_Sigma) before the update).
+    pub fn improve_policy_with(
+        &mut self,
+        obs: &Tensor,
+        q_fn: impl Fn(&Tensor) -> Tensor,
+    ) -> (Vec<f32>, Vec<f32>) {
+        // Each state is a snippet of length 0: its own grid point.
+        let (obs, preferences) = self.preferences_of(&obs.to_device(self.device).unsqueeze(0), 0);
+        let n = obs.size()[1];
+        let target_out = tch::no_grad(|| self.target_policy.forward_members(&obs, None));
+        let PolicyOutput::Gaussian(target) = &target_out else {
+            panic!("improve_policy_with needs a Gaussian policy");
+        };
+        let shape = [&[self.cfg.mpo.num_samples][..], &target.mean.size()[1..]].concat();
+        let noise = self
+            .stream(Purpose::LearnerNoise)
+            .normal(&shape, self.device)
+            .unsqueeze(0);
+        let samples = tch::no_grad(|| target.mean.unsqueeze(1) + noise * target.std.unsqueeze(1));
+        let q = q_fn(&samples.squeeze_dim(0)).unsqueeze(0);
+        let uniform = Tensor::full([1, n], 1.0 / n as f64, (Kind::Float, self.device));
+        let states = match &preferences {
+            Some(p) => StateMean::PerGridPoint(&p.state_weight),
+            None => StateMean::Members(&uniform),
+        };
+        let estep = self.estep(&q, None, preferences.as_ref(), states);
+        let online_out = self.policy.forward_members(&obs, None);
+        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
+        let fit_states = match preferences {
+            Some(_) => StateMean::Uniform,
+            None => states,
+        };
+        let policy_kl = self.fit_policy(
+            &online_out,
+            &target_out,
+            &samples,
+            &weights,
+            &estep.temperature_loss,
+            fit_states,
+        );
+        self.advance_targets().expect("same layout");
+        (self.duals.values().0, to_vec(&policy_kl))
+    }
+}

@@ -1,0 +1,134 @@
+//! A learner's networks and their targets (C.1), built in one fixed order so that
+//! each parameter draws the same numbers from a seeded generator, for one member or
+//! stacked for a population (`load_members` copies each member's single build in).
+//!
+//! Shape legend: P members, C learned critics.
+
+use super::objectives::{BoundObjectives, LearnerDims};
+use crate::core::learner_config::LearnerConfig;
+use crate::core::nets::{Members, MultiCritic, Policy, ValueNet};
+use tch::{Device, nn};
+
+/// A target network (C.1): same layout as `online`'s network, built by `build` on a new
+/// VarStore on the same device, parameters copied, frozen (no gradients).
+fn frozen_copy<N>(
+    online: &nn::VarStore,
+    build: impl FnOnce(&nn::VarStore) -> N,
+) -> Result<(nn::VarStore, N), tch::TchError> {
+    let mut vs = nn::VarStore::new(online.device());
+    let net = build(&vs);
+    vs.copy(online)?;
+    vs.freeze();
+    Ok((vs, net))
+}
+
+/// The critics of either family.
+#[derive(Debug)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per learner; boxing buys nothing"
+)]
+pub(crate) enum Critics {
+    /// MO-MPO: Q_c(s, a) with a frozen target copy (C.1).
+    Q {
+        online: MultiCritic,
+        target: MultiCritic,
+        target_vs: nn::VarStore,
+    },
+    /// MO-V-MPO: V_c(s), bootstrapped from itself (D.1).
+    V { online: ValueNet },
+}
+
+/// What `Learner::build_networks` makes.
+#[derive(Debug)]
+pub(super) struct Networks {
+    pub(super) policy_vs: nn::VarStore,
+    pub(super) policy: Policy,
+    pub(super) target_policy_vs: nn::VarStore,
+    pub(super) target_policy: Policy,
+    pub(super) critic_vs: nn::VarStore,
+    pub(super) critics: Critics,
+}
+
+impl Networks {
+    /// The online and target stores, in one order for every `Networks`.
+    fn stores(&self) -> Vec<&nn::VarStore> {
+        let mut stores = vec![&self.policy_vs, &self.target_policy_vs, &self.critic_vs];
+        if let Critics::Q { target_vs, .. } = &self.critics {
+            stores.push(target_vs);
+        }
+        stores
+    }
+
+    /// Copies `singles[p]`'s parameters into member p of these stacked networks.
+    pub(super) fn load_members(&self, singles: &[Networks]) -> Result<(), tch::TchError> {
+        for (p, single) in singles.iter().enumerate() {
+            for (stacked, one) in self.stores().into_iter().zip(single.stores()) {
+                let vars = stacked.variables();
+                for (name, value) in one.variables() {
+                    let slot = vars.get(&name).ok_or_else(|| {
+                        tch::TchError::FileFormat(format!("no stacked variable {name}"))
+                    })?;
+                    tch::no_grad(|| slot.get(p as i64).f_copy_(&value))?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The networks in today's construction order, which fixes what each parameter
+/// draws from the seeded generator (see `random::seeded_init`).
+pub(super) fn build_networks(
+    cfg: &LearnerConfig,
+    dims: &LearnerDims,
+    bound: &BoundObjectives,
+    device: Device,
+    members: Members,
+) -> Result<Networks, tch::TchError> {
+    let net = &cfg.network;
+    let heads = bound.critic_names.len() as i64;
+    let policy_vs = nn::VarStore::new(device);
+    let build_policy =
+        |vs: &nn::VarStore| Policy::with_members(&(vs.root() / "policy"), net, dims, members);
+    let policy = build_policy(&policy_vs);
+    let (target_policy_vs, target_policy) = frozen_copy(&policy_vs, build_policy)?;
+    let critic_vs = nn::VarStore::new(device);
+    let critics = if cfg.algorithm.on_policy() {
+        Critics::V {
+            online: ValueNet::with_members(
+                &(critic_vs.root() / "critic"),
+                net,
+                dims.obs_dim,
+                heads,
+                members,
+            ),
+        }
+    } else {
+        let build = |vs: &nn::VarStore| {
+            MultiCritic::with_members(
+                &(vs.root() / "critic"),
+                net,
+                dims.obs_dim,
+                dims.action,
+                heads,
+                members,
+            )
+        };
+        let online = build(&critic_vs);
+        let (target_vs, target) = frozen_copy(&critic_vs, build)?;
+        Critics::Q {
+            online,
+            target,
+            target_vs,
+        }
+    };
+    Ok(Networks {
+        policy_vs,
+        policy,
+        target_policy_vs,
+        target_policy,
+        critic_vs,
+        critics,
+    })
+}

@@ -1,0 +1,424 @@
+//! The layers every network is built from: Linear -> LayerNorm -> tanh, then Linear
+//! -> ELU per further hidden layer (Table 2 "layer norm on first layer", "tanh on
+//! output of layer norm", "activation ELU"). The critics' heads are in `heads.rs`.
+//!
+//! Weights use PyTorch's `nn.Linear` initialisation, uniform(-1/sqrt(fan_in), 1/sqrt(fan_in))
+//! for weight and bias, so the PyTorch reference in `benches/` builds the same networks.
+//!
+//! Population training (docs/design.md, "Populations") gives every layer a member axis:
+//! P members' parameters stacked along a leading axis, so that one batched matmul
+//! runs a layer of all P networks. `forward_members` takes and returns member-first
+//! tensors `[P, R, ..]`. A layer of one member keeps today's unstacked shapes and
+//! names (checkpoints, snapshots and the Python loader read them) and runs the same
+//! kernels as `forward`, so a population of one computes a single network's numbers
+//! bit for bit.
+//!
+//! Shape legend: P members, R rows (states or state-action pairs).
+
+use super::activation::{elu_, tanh_};
+use tch::{Tensor, nn};
+
+/// How many members' parameters a layer holds: one with today's shapes, or P >= 2
+/// stacked along a leading member axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Members(i64);
+
+impl Members {
+    /// One member: unstacked parameters.
+    pub const ONE: Members = Members(1);
+
+    /// `count` members; `None` for fewer than one.
+    pub fn new(count: i64) -> Option<Self> {
+        (count >= 1).then_some(Members(count))
+    }
+
+    /// P.
+    pub fn count(self) -> i64 {
+        self.0
+    }
+
+    pub(crate) fn stacked(self) -> bool {
+        self.0 > 1
+    }
+
+    /// Members `start..start + len` of a stacked parameter `t` as a view: stacked
+    /// (`len` >= 2) or one member's unstacked tensor (`len` = 1); `t` itself when
+    /// this is one member.
+    pub(crate) fn view(self, t: &Tensor, start: i64, len: i64) -> Tensor {
+        match (self.stacked(), len) {
+            (false, _) => t.shallow_clone(),
+            (true, 1) => t.get(start),
+            (true, _) => t.narrow(0, start, len),
+        }
+    }
+
+    /// The member count of a view of `len` members of this layer.
+    pub(crate) fn narrowed(self, len: i64) -> Members {
+        if self.stacked() { Members(len) } else { self }
+    }
+
+    /// A parameter's shape: `dims`, behind the member axis when stacked.
+    pub(crate) fn shape(self, dims: &[i64]) -> Vec<i64> {
+        if self.stacked() {
+            [&[self.0][..], dims].concat()
+        } else {
+            dims.to_vec()
+        }
+    }
+}
+
+/// A dense layer `y = x W^T + b` with weight `[out, in]` (`[P, out, in]` stacked).
+#[derive(Debug)]
+pub struct Dense {
+    /// Weight `[out, in]`, or `[P, out, in]`.
+    pub weight: Tensor,
+    /// Bias `[out]` (`[P, out]`), absent for the action half of a split first layer.
+    pub bias: Option<Tensor>,
+    members: Members,
+}
+
+impl Dense {
+    /// Creates `weight` (and `bias`) under `p`, initialised with bound 1/sqrt(fan_in).
+    /// `fan_in` may exceed `input` when this layer is part of a split layer.
+    pub fn new(p: &nn::Path, input: i64, output: i64, fan_in: i64, bias: bool) -> Self {
+        Self::with_members(p, input, output, fan_in, bias, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        input: i64,
+        output: i64,
+        fan_in: i64,
+        bias: bool,
+        members: Members,
+    ) -> Self {
+        let bound = 1.0 / (fan_in as f64).sqrt();
+        let init = nn::Init::Uniform {
+            lo: -bound,
+            up: bound,
+        };
+        let weight = p.var("weight", &members.shape(&[output, input]), init);
+        let bias = bias.then(|| p.var("bias", &members.shape(&[output]), init));
+        Self {
+            weight,
+            bias,
+            members,
+        }
+    }
+
+    /// # Shapes
+    /// `[.., in] -> [.., out]` (one member).
+    pub fn forward(&self, x: &Tensor) -> Tensor {
+        x.linear(&self.weight, self.bias.as_ref())
+    }
+
+    /// Members `start..start + len` as a layer of their own (views of the parameters,
+    /// for untracked passes run a few members at a time).
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            weight: self.members.view(&self.weight, start, len),
+            bias: self.bias.as_ref().map(|b| self.members.view(b, start, len)),
+            members: self.members.narrowed(len),
+        }
+    }
+
+    /// # Shapes
+    /// `[P, R, in] -> [P, R, out]`.
+    pub fn forward_members(&self, x: &Tensor) -> Tensor {
+        if !self.members.stacked() {
+            return self.forward(x);
+        }
+        let weight_t = self.weight.transpose(1, 2);
+        match &self.bias {
+            Some(b) => b.unsqueeze(1).baddbmm(x, &weight_t, 1.0, 1.0),
+            None => x.bmm(&weight_t),
+        }
+    }
+}
+
+/// LayerNorm with learned scale and shift over the last dimension (eps 1e-5).
+#[derive(Debug)]
+pub struct Norm {
+    weight: Tensor,
+    bias: Tensor,
+    dim: i64,
+    members: Members,
+}
+
+const LAYER_NORM_EPS: f64 = 1e-5;
+
+impl Norm {
+    /// Creates `weight` (ones) and `bias` (zeros) of width `dim` under `p`.
+    pub fn new(p: &nn::Path, dim: i64) -> Self {
+        Self::with_members(p, dim, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(p: &nn::Path, dim: i64, members: Members) -> Self {
+        Self {
+            weight: p.var("weight", &members.shape(&[dim]), nn::Init::Const(1.0)),
+            bias: p.var("bias", &members.shape(&[dim]), nn::Init::Const(0.0)),
+            dim,
+            members,
+        }
+    }
+
+    /// Members `start..start + len` (views), as `Dense::narrow_members`.
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            weight: self.members.view(&self.weight, start, len),
+            bias: self.members.view(&self.bias, start, len),
+            dim: self.dim,
+            members: self.members.narrowed(len),
+        }
+    }
+
+    /// LayerNorm then tanh. # Shapes `[.., dim] -> [.., dim]` (one member).
+    pub fn forward_tanh(&self, x: &Tensor) -> Tensor {
+        // In place: LayerNorm's backward needs its input, not its output.
+        let mut y = x.layer_norm(
+            [self.dim],
+            Some(&self.weight),
+            Some(&self.bias),
+            LAYER_NORM_EPS,
+            true,
+        );
+        tanh_(&mut y);
+        y
+    }
+
+    /// # Shapes
+    /// `[P, R, dim] -> [P, R, dim]`.
+    pub fn forward_tanh_members(&self, x: &Tensor) -> Tensor {
+        if !self.members.stacked() {
+            return self.forward_tanh(x);
+        }
+        // libtorch's fused affine takes one [dim] scale; members scale separately.
+        let normed = x.layer_norm([self.dim], None::<Tensor>, None, LAYER_NORM_EPS, true);
+        let mut y = self
+            .bias
+            .unsqueeze(1)
+            .addcmul(&normed, &self.weight.unsqueeze(1));
+        tanh_(&mut y);
+        y
+    }
+}
+
+/// Linear -> LayerNorm -> tanh, then Linear -> ELU for each further hidden size.
+#[derive(Debug)]
+pub struct LayerNormMlp {
+    first: Dense,
+    norm: Norm,
+    hidden: Vec<Dense>,
+    output_dim: i64,
+}
+
+impl LayerNormMlp {
+    /// `layers` are the hidden sizes (non-empty); parameters live under `p`.
+    pub fn new(p: &nn::Path, input: i64, layers: &[i64]) -> Self {
+        Self::with_members(p, input, layers, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(p: &nn::Path, input: i64, layers: &[i64], members: Members) -> Self {
+        let first = Dense::with_members(&(p / "linear_0"), input, layers[0], input, true, members);
+        let norm = Norm::with_members(&(p / "layer_norm"), layers[0], members);
+        let hidden = layers
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| {
+                let path = p / format!("linear_{}", i + 1);
+                Dense::with_members(&path, w[0], w[1], w[0], true, members)
+            })
+            .collect();
+        Self {
+            first,
+            norm,
+            hidden,
+            output_dim: *layers.last().unwrap_or(&input),
+        }
+    }
+
+    /// Members `start..start + len` (views), as `Dense::narrow_members`.
+    pub fn narrow_members(&self, start: i64, len: i64) -> Self {
+        Self {
+            first: self.first.narrow_members(start, len),
+            norm: self.norm.narrow_members(start, len),
+            hidden: self
+                .hidden
+                .iter()
+                .map(|d| d.narrow_members(start, len))
+                .collect(),
+            output_dim: self.output_dim,
+        }
+    }
+
+    /// Width of the last hidden layer.
+    pub fn output_dim(&self) -> i64 {
+        self.output_dim
+    }
+
+    /// # Shapes
+    /// `[.., input] -> [.., layers.last()]` (one member).
+    pub fn forward(&self, x: &Tensor) -> Tensor {
+        let mut h = self.norm.forward_tanh(&self.first.forward(x));
+        for layer in &self.hidden {
+            h = layer.forward(&h);
+            // In place: Linear's backward does not need its output.
+            elu_(&mut h);
+        }
+        h
+    }
+
+    /// # Shapes
+    /// `[P, R, input] -> [P, R, layers.last()]`.
+    pub fn forward_members(&self, x: &Tensor) -> Tensor {
+        let mut h = self
+            .norm
+            .forward_tanh_members(&self.first.forward_members(x));
+        for layer in &self.hidden {
+            h = layer.forward_members(&h);
+            elu_(&mut h);
+        }
+        h
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::heads::HeadStack;
+    use super::*;
+    use crate::core::random::{Purpose, StreamKey};
+    use tch::{Device, Kind};
+
+    const P: i64 = 3;
+
+    /// Test inputs from a keyed stream, not libtorch's shared generator.
+    fn randn(shape: &[i64]) -> Tensor {
+        StreamKey::new(0, Purpose::LearnerActing, 0)
+            .at(shape.iter().product::<i64>() as u64)
+            .normal(shape, Device::Cpu)
+    }
+
+    /// Member `p` of every stacked variable of `population`, copied from `single`'s
+    /// variable of the same name.
+    fn load_member(population: &nn::VarStore, p: i64, single: &nn::VarStore) {
+        let stacked = population.variables();
+        for (name, value) in single.variables() {
+            tch::no_grad(|| stacked[&name].get(p).copy_(&value));
+        }
+    }
+
+    /// A network type as the member tests drive it.
+    trait Net {
+        fn build(p: &nn::Path, members: Members) -> Self;
+        fn forward(&self, x: &Tensor) -> Tensor;
+        fn forward_members(&self, x: &Tensor) -> Tensor;
+    }
+
+    impl Net for LayerNormMlp {
+        fn build(p: &nn::Path, members: Members) -> Self {
+            LayerNormMlp::with_members(p, 5, &[8, 6], members)
+        }
+        fn forward(&self, x: &Tensor) -> Tensor {
+            LayerNormMlp::forward(self, x)
+        }
+        fn forward_members(&self, x: &Tensor) -> Tensor {
+            LayerNormMlp::forward_members(self, x)
+        }
+    }
+
+    impl Net for HeadStack {
+        fn build(p: &nn::Path, members: Members) -> Self {
+            HeadStack::with_members(p, 2, &[5, 6], members)
+        }
+        fn forward(&self, x: &Tensor) -> Tensor {
+            HeadStack::forward(self, x)
+        }
+        fn forward_members(&self, x: &Tensor) -> Tensor {
+            HeadStack::forward_members(self, x)
+        }
+    }
+
+    /// A population of one runs the single network's kernels on the same shapes.
+    fn one_member_is_bit_for_bit<N: Net>() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = N::build(&vs.root(), Members::ONE);
+        let x = randn(&[7, 5]);
+        let single = net.forward(&x);
+        assert!(
+            net.forward_members(&x.unsqueeze(0))
+                .squeeze_dim(0)
+                .equal(&single)
+        );
+    }
+
+    /// Member p of a stacked network computes what a single network with p's
+    /// parameters computes, and gets exactly that network's gradient from the
+    /// members' summed loss.
+    fn stacked_members_are_their_single_networks<N: Net>() {
+        let singles: Vec<(nn::VarStore, N)> = (0..P)
+            .map(|_| {
+                let vs = nn::VarStore::new(Device::Cpu);
+                let net = N::build(&vs.root(), Members::ONE);
+                (vs, net)
+            })
+            .collect();
+        let population_vs = nn::VarStore::new(Device::Cpu);
+        let population = N::build(&population_vs.root(), Members::new(P).unwrap());
+        for (p, (vs, _)) in singles.iter().enumerate() {
+            load_member(&population_vs, p as i64, vs);
+        }
+        let x = randn(&[P, 7, 5]);
+        let out = population.forward_members(&x);
+        out.square().sum(Kind::Float).backward();
+        let stacked = population_vs.variables();
+        for (p, (vs, net)) in singles.iter().enumerate() {
+            let single = net.forward(&x.get(p as i64));
+            // Batched and single GEMMs may round differently; a wrong member or a
+            // missing bias would be off by O(1).
+            assert!(
+                out.get(p as i64).allclose(&single, 1e-6, 1e-6, false),
+                "member {p}: outputs differ"
+            );
+            single.square().sum(Kind::Float).backward();
+            for (name, var) in vs.variables() {
+                let grad = stacked[&name].grad().get(p as i64);
+                assert!(
+                    grad.allclose(&var.grad(), 1e-5, 1e-6, false),
+                    "member {p}, {name}: gradients differ"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_population_of_one_is_the_single_network_bit_for_bit() {
+        one_member_is_bit_for_bit::<LayerNormMlp>();
+        one_member_is_bit_for_bit::<HeadStack>();
+    }
+
+    #[test]
+    fn each_stacked_member_is_its_own_single_network() {
+        stacked_members_are_their_single_networks::<LayerNormMlp>();
+        stacked_members_are_their_single_networks::<HeadStack>();
+    }
+
+    #[test]
+    fn shapes_and_first_layer_is_bounded() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let mlp = LayerNormMlp::new(&(vs.root() / "torso"), 5, &[8]);
+        let y = mlp.forward(&(randn(&[3, 5]) * 100.0));
+        assert_eq!(y.size(), vec![3, 8]);
+        // With one layer the output is tanh(LayerNorm(.)), so strictly inside (-1, 1).
+        assert!(y.abs().max().double_value(&[]) < 1.0);
+        let mlp = LayerNormMlp::new(&(vs.root() / "deep"), 5, &[8, 4, 2]);
+        assert_eq!(
+            mlp.forward(&Tensor::zeros([7, 5], (Kind::Float, Device::Cpu)))
+                .size(),
+            vec![7, 2]
+        );
+        assert_eq!(mlp.output_dim(), 2);
+    }
+}

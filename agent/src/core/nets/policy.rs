@@ -1,0 +1,452 @@
+//! Policies (appendix A): a diagonal Gaussian for continuous actions and a categorical
+//! distribution over logits for discrete actions (A.2).
+//!
+//! Gaussian parameterisation (documented choice): the head outputs `[mean_raw, std_raw]`;
+//! `mean = tanh(mean_raw)` when `tanh_on_action_mean` (Table 2) else `mean_raw`, and
+//! `std = softplus(std_raw) + sqrt(min_variance)`, so the variance is at least
+//! `min_variance` (Table 2 "minimum variance", "maximum variance unbounded").
+//!
+//! Shape legend: B states, M samples per state, D action dims, A discrete actions.
+
+use super::mlp::{Dense, Members};
+use super::torso::Torso;
+use super::{ActionKind, LearnerDims};
+use crate::core::learner_config::NetworkConfig;
+use crate::core::random::RandomStream;
+use tch::{Kind, Tensor, nn};
+
+const HALF_LOG_TWO_PI: f64 = 0.918_938_533_204_672_7;
+
+/// Mean and standard deviation of a diagonal Gaussian per state.
+#[derive(Debug)]
+pub struct GaussianParams {
+    /// `[B, D]`.
+    pub mean: Tensor,
+    /// `[B, D]`, positive.
+    pub std: Tensor,
+}
+
+impl GaussianParams {
+    /// `log N(a; mean, diag(std^2))`, summed over D.
+    /// # Shapes
+    /// `actions [.., B, D]` (broadcast against `[B, D]`) `-> [.., B]`.
+    pub fn log_prob(&self, actions: &Tensor) -> Tensor {
+        let z = (actions - &self.mean) / &self.std;
+        let per_dim = z.square() * -0.5 - self.std.log() - HALF_LOG_TWO_PI;
+        per_dim.sum_dim_intlist(-1, false, Kind::Float)
+    }
+
+    /// The actions `mean + std * noise` for standard-normal `noise`.
+    /// # Shapes
+    /// `noise [M, B, D] -> [M, B, D]`.
+    pub fn sample_from(&self, noise: &Tensor) -> Tensor {
+        &self.mean + noise * &self.std
+    }
+
+    /// A copy with gradients cut.
+    pub fn detach(&self) -> GaussianParams {
+        GaussianParams {
+            mean: self.mean.detach(),
+            std: self.std.detach(),
+        }
+    }
+}
+
+/// Diagonal Gaussian policy network.
+#[derive(Debug)]
+pub struct GaussianPolicy {
+    torso: Torso,
+    head: Dense,
+    action_dim: i64,
+    tanh_mean: bool,
+    min_std: f64,
+}
+
+impl GaussianPolicy {
+    /// Parameters under `p` (`torso/..`, `head/..`, and the mocap torso's `encoder/..`,
+    /// `latent/..`).
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims, action_dim: i64) -> Self {
+        Self::with_members(p, cfg, dims, action_dim, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        action_dim: i64,
+        members: Members,
+    ) -> Self {
+        let torso = Torso::with_members(p, cfg, dims, members);
+        let last = torso.output_dim();
+        let head = Dense::with_members(&(p / "head"), last, 2 * action_dim, last, true, members);
+        Self {
+            torso,
+            head,
+            action_dim,
+            tanh_mean: cfg.tanh_on_action_mean,
+            min_std: cfg.min_variance.sqrt(),
+        }
+    }
+
+    /// # Shapes
+    /// `obs [B, obs_dim]`, latent `noise [B, L]` (mocap torso; `None` draws it)
+    /// `-> mean, std [B, D]`.
+    pub fn forward(&self, obs: &Tensor, noise: Option<&Tensor>) -> GaussianParams {
+        self.params(self.head.forward(&self.torso.forward(obs, noise)))
+    }
+
+    /// # Shapes
+    /// `obs [P, B, obs_dim]`, latent `noise [B, L]` (one member's mocap torso; `None`
+    /// takes the latent's mean) `-> mean, std [P, B, D]`.
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> GaussianParams {
+        self.params(
+            self.head
+                .forward_members(&self.torso.forward_members(obs, noise)),
+        )
+    }
+
+    /// Mean and std from the head's output `[.., 2 D]`.
+    fn params(&self, out: Tensor) -> GaussianParams {
+        let parts = out.split(self.action_dim, -1);
+        let mean = if self.tanh_mean {
+            parts[0].tanh()
+        } else {
+            parts[0].shallow_clone()
+        };
+        let std = parts[1].softplus() + self.min_std;
+        GaussianParams { mean, std }
+    }
+}
+
+/// Categorical policy network over `A` actions (A.2).
+#[derive(Debug)]
+pub struct CategoricalPolicy {
+    torso: Torso,
+    head: Dense,
+}
+
+impl CategoricalPolicy {
+    /// Parameters under `p` (`torso/..`, `head/..`).
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims, num_actions: i64) -> Self {
+        Self::with_members(p, cfg, dims, num_actions, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        num_actions: i64,
+        members: Members,
+    ) -> Self {
+        let torso = Torso::with_members(p, cfg, dims, members);
+        let last = torso.output_dim();
+        let head = Dense::with_members(&(p / "head"), last, num_actions, last, true, members);
+        Self { torso, head }
+    }
+
+    /// # Shapes `obs [P, B, obs_dim]`, latent `noise` as `GaussianPolicy`'s `-> [P, B, A]`.
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> Tensor {
+        self.head
+            .forward_members(&self.torso.forward_members(obs, noise))
+    }
+
+    /// Unnormalised log-probabilities. # Shapes `obs [B, obs_dim] -> [B, A]`.
+    pub fn forward(&self, obs: &Tensor, noise: Option<&Tensor>) -> Tensor {
+        self.head.forward(&self.torso.forward(obs, noise))
+    }
+}
+
+/// Distribution parameters for a batch of states.
+#[derive(Debug)]
+pub enum PolicyOutput {
+    /// Diagonal Gaussian.
+    Gaussian(GaussianParams),
+    /// Logits `[B, A]`.
+    Categorical(Tensor),
+}
+
+impl PolicyOutput {
+    /// The rows (states) at `index`. # Shapes `[B, ...]`, `index [R] i64 -> [R, ...]`.
+    pub fn rows(&self, index: &Tensor) -> Self {
+        match self {
+            PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
+                mean: g.mean.index_select(0, index),
+                std: g.std.index_select(0, index),
+            }),
+            PolicyOutput::Categorical(logits) => {
+                PolicyOutput::Categorical(logits.index_select(0, index))
+            }
+        }
+    }
+
+    /// Each member's rows at its own indices (states along axis 1).
+    /// # Shapes `[P, B, ...]`, `index [P, R] i64 -> [P, R, ...]`.
+    pub fn member_rows(&self, index: &Tensor) -> Self {
+        let pick = |t: &Tensor| gather_rows(t, index);
+        match self {
+            PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
+                mean: pick(&g.mean),
+                std: pick(&g.std),
+            }),
+            PolicyOutput::Categorical(logits) => PolicyOutput::Categorical(pick(logits)),
+        }
+    }
+
+    /// The first `len` states of every member (axis 1).
+    pub fn narrow_states(&self, len: i64) -> Self {
+        match self {
+            PolicyOutput::Gaussian(g) => PolicyOutput::Gaussian(GaussianParams {
+                mean: g.mean.narrow(1, 0, len),
+                std: g.std.narrow(1, 0, len),
+            }),
+            PolicyOutput::Categorical(l) => PolicyOutput::Categorical(l.narrow(1, 0, len)),
+        }
+    }
+
+    /// Log-probability of taken actions.
+    /// # Shapes
+    /// Gaussian `[B, D] f32`, categorical `[B] i64` `-> [B]`.
+    pub fn log_prob(&self, actions: &Tensor) -> Tensor {
+        match self {
+            PolicyOutput::Gaussian(g) => g.log_prob(actions),
+            PolicyOutput::Categorical(logits) => logits
+                .log_softmax(-1, Kind::Float)
+                .gather(-1, &actions.unsqueeze(-1), false)
+                .squeeze_dim(-1),
+        }
+    }
+}
+
+/// Rows of `t [P, B, ...]` at `index [P, R]` along axis 1 `-> [P, R, ...]`.
+pub fn gather_rows(t: &Tensor, index: &Tensor) -> Tensor {
+    let size = t.size();
+    let mut shape = index.size();
+    shape.extend_from_slice(&size[2..]);
+    let mut idx = index.shallow_clone();
+    for _ in 2..size.len() {
+        idx = idx.unsqueeze(-1);
+    }
+    t.gather(1, &idx.expand(shape.as_slice(), false), false)
+}
+
+/// Actions chosen for a batch of states, with the log-probabilities the replay
+/// stores as the behaviour policy's (Retrace, C.2).
+#[derive(Debug)]
+pub struct ActOutput {
+    /// `[B, D] f32` (continuous, unclipped) or `[B] i64` (discrete).
+    pub actions: Tensor,
+    /// `[B] f32`: log b(a|s).
+    pub log_probs: Tensor,
+}
+
+/// How `Policy::act` chooses actions.
+#[derive(Debug)]
+pub enum Acting<'a> {
+    /// The mean (Gaussian) or most likely action (categorical), latent noise zero.
+    Deterministic,
+    /// Draws from the policy with numbers from this stream.
+    Sample(&'a mut RandomStream),
+}
+
+/// A Gaussian or categorical policy network.
+#[derive(Debug)]
+pub enum Policy {
+    /// Continuous actions.
+    Gaussian(GaussianPolicy),
+    /// Discrete actions.
+    Categorical(CategoricalPolicy),
+}
+
+impl Policy {
+    /// Builds the policy for `dims.action` under `p`.
+    pub fn new(p: &nn::Path, cfg: &NetworkConfig, dims: &LearnerDims) -> Self {
+        Self::with_members(p, cfg, dims, Members::ONE)
+    }
+
+    /// As `new`, for `members` networks.
+    pub fn with_members(
+        p: &nn::Path,
+        cfg: &NetworkConfig,
+        dims: &LearnerDims,
+        members: Members,
+    ) -> Self {
+        match dims.action {
+            ActionKind::Continuous { dim } => {
+                Policy::Gaussian(GaussianPolicy::with_members(p, cfg, dims, dim, members))
+            }
+            ActionKind::Discrete { n } => {
+                Policy::Categorical(CategoricalPolicy::with_members(p, cfg, dims, n, members))
+            }
+        }
+    }
+
+    /// Every member's distribution on its own states; a latent torso (one member
+    /// only) reads the latent `noise [B, L]`, or its mean when `None`.
+    /// # Shapes
+    /// `obs [P, B, obs_dim] -> [P, B, D]` (mean, std) or `[P, B, A]` (logits).
+    pub fn forward_members(&self, obs: &Tensor, noise: Option<&Tensor>) -> PolicyOutput {
+        match self {
+            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward_members(obs, noise)),
+            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward_members(obs, noise)),
+        }
+    }
+
+    /// # Shapes
+    /// `obs [B, obs_dim]`; a latent torso draws fresh noise.
+    pub fn forward(&self, obs: &Tensor) -> PolicyOutput {
+        self.forward_with_noise(obs, None)
+    }
+
+    /// As `forward`, with the latent noise `[B, L]` of a latent torso given.
+    pub fn forward_with_noise(&self, obs: &Tensor, noise: Option<&Tensor>) -> PolicyOutput {
+        match self {
+            Policy::Gaussian(g) => PolicyOutput::Gaussian(g.forward(obs, noise)),
+            Policy::Categorical(c) => PolicyOutput::Categorical(c.forward(obs, noise)),
+        }
+    }
+
+    /// The latent width of a latent torso, `None` for a plain one.
+    pub fn latent_dim(&self) -> Option<i64> {
+        match self {
+            Policy::Gaussian(g) => g.torso.latent_dim(),
+            Policy::Categorical(c) => c.torso.latent_dim(),
+        }
+    }
+
+    /// Latent noise `[rows, L]` from `stream`, `None` when the torso has no latent.
+    pub fn latent_noise(&self, rows: i64, stream: &mut RandomStream) -> Option<Tensor> {
+        let device = match self {
+            Policy::Gaussian(g) => g.head.weight.device(),
+            Policy::Categorical(c) => c.head.weight.device(),
+        };
+        self.latent_dim().map(|l| stream.normal(&[rows, l], device))
+    }
+
+    /// Samples actions from `stream` (or takes the mean / most likely action).
+    /// Runs without gradient tracking.
+    ///
+    /// A categorical sample is the inverse CDF of one uniform per state: the first
+    /// action whose cumulative probability exceeds it.
+    pub fn act(&self, obs: &Tensor, acting: Acting<'_>) -> ActOutput {
+        tch::no_grad(|| {
+            let rows = obs.size()[0];
+            let device = obs.device();
+            // The deterministic policy uses the latent's mean (zero noise).
+            let (noise, stream) = match acting {
+                Acting::Deterministic => (
+                    self.latent_dim()
+                        .map(|l| Tensor::zeros([rows, l], (Kind::Float, device))),
+                    None,
+                ),
+                Acting::Sample(stream) => (self.latent_noise(rows, stream), Some(stream)),
+            };
+            let out = self.forward_with_noise(obs, noise.as_ref());
+            let actions = match (&out, stream) {
+                (PolicyOutput::Gaussian(g), None) => g.mean.shallow_clone(),
+                (PolicyOutput::Gaussian(g), Some(stream)) => {
+                    g.sample_from(&stream.normal(&g.mean.size(), device))
+                }
+                (PolicyOutput::Categorical(logits), None) => logits.argmax(-1, false),
+                (PolicyOutput::Categorical(logits), Some(stream)) => {
+                    let cdf = logits.softmax(-1, Kind::Float).cumsum(-1, Kind::Float);
+                    let u = stream.uniform(&[rows, 1], device);
+                    // Rounding can leave the last cumulative probability below u.
+                    cdf.lt_tensor(&u)
+                        .sum_dim_intlist(-1, false, Kind::Int64)
+                        .clamp_max(cdf.size()[1] - 1)
+                }
+            };
+            let log_probs = out.log_prob(&actions);
+            ActOutput { actions, log_probs }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::random::{Purpose, StreamKey};
+    use tch::Device;
+
+    fn dims(obs_dim: i64, action: ActionKind) -> LearnerDims {
+        LearnerDims {
+            action_bounds: None,
+            obs_dim,
+            action,
+            reward_names: vec!["r".into()],
+            obs_leaves: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn std_respects_min_variance_and_tanh_mean() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let cfg = NetworkConfig {
+            min_variance: 1e-4,
+            ..NetworkConfig::default()
+        };
+        let policy = GaussianPolicy::new(
+            &vs.root(),
+            &cfg,
+            &dims(3, ActionKind::Continuous { dim: 2 }),
+            2,
+        );
+        let obs = Tensor::randn([64, 3], (Kind::Float, Device::Cpu)) * 1e3;
+        let out = policy.forward(&obs, None);
+        assert!(out.std.min().double_value(&[]) >= 1e-2);
+        assert!(out.mean.abs().max().double_value(&[]) <= 1.0);
+    }
+
+    #[test]
+    fn categorical_act_returns_indices_and_log_probs() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let policy = Policy::new(
+            &vs.root(),
+            &NetworkConfig::default(),
+            &dims(3, ActionKind::Discrete { n: 4 }),
+        );
+        let mut stream = StreamKey::new(0, Purpose::Acting, 0).at(0);
+        let obs = Tensor::zeros([6, 3], (Kind::Float, Device::Cpu));
+        let act = policy.act(&obs, Acting::Sample(&mut stream));
+        assert_eq!(act.actions.size(), vec![6]);
+        assert_eq!(act.actions.kind(), Kind::Int64);
+        let max = act.log_probs.max().double_value(&[]);
+        assert!(max <= 0.0 && max > -20.0);
+    }
+
+    #[test]
+    fn categorical_samples_follow_the_probabilities_and_the_stream() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let policy = Policy::new(
+            &vs.root(),
+            &NetworkConfig::default(),
+            &dims(3, ActionKind::Discrete { n: 4 }),
+        );
+        // One state repeated: every row has the same probabilities p.
+        let obs = Tensor::ones([20_000, 3], (Kind::Float, Device::Cpu));
+        let PolicyOutput::Categorical(logits) = policy.forward(&obs.narrow(0, 0, 1)) else {
+            unreachable!("a discrete action space gives a categorical policy")
+        };
+        let p = Vec::<f32>::try_from(logits.softmax(-1, Kind::Float).flatten(0, -1)).unwrap();
+        let key = StreamKey::new(5, Purpose::Acting, 0);
+        let actions = policy.act(&obs, Acting::Sample(&mut key.at(0))).actions;
+        for (a, &p_a) in p.iter().enumerate() {
+            let freq = actions
+                .eq(a as i64)
+                .to_kind(Kind::Double)
+                .mean(Kind::Double);
+            // Binomial standard error sqrt(p(1-p)/n) <= 0.0036 at n = 20,000.
+            assert!(
+                (freq.double_value(&[]) - p_a as f64).abs() < 0.02,
+                "action {a}: frequency {freq} against probability {p_a}"
+            );
+        }
+        let again = policy.act(&obs, Acting::Sample(&mut key.at(0))).actions;
+        assert!(
+            actions.equal(&again),
+            "the same stream gives the same actions"
+        );
+    }
+}

@@ -1,0 +1,466 @@
+//! Figures for fronts and learning curves, written as PNG and SVG with plotters.
+//!
+//! The font is embedded (DejaVu Sans, `agent/assets/`), so rendering needs no
+//! system font libraries.
+
+use std::path::{Path, PathBuf};
+use std::sync::Once;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// How a series is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SeriesKind {
+    /// Unconnected filled circles (sweep points).
+    Markers,
+    /// Unconnected hollow circles (a known optimum, e.g. the true front).
+    OpenMarkers,
+    /// Crosses (a reference point).
+    Crosses,
+    /// A polyline (learning curves).
+    Line,
+    /// A step plot: from each point horizontally to the next x, then vertically.
+    Steps,
+    /// A closed polygon, lightly filled and outlined (a dominated region).
+    Region,
+    /// A thin horizontal line across the plot at each point's y (levels to read off).
+    Levels,
+}
+
+/// One labelled set of (x, y) points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// Legend entry.
+    pub label: String,
+    /// Points in drawing order.
+    pub points: Vec<(f64, f64)>,
+    /// Markers or line.
+    pub kind: SeriesKind,
+}
+
+/// A 2-D figure: axes labels, title and series.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Figure {
+    /// Caption above the plot.
+    pub title: String,
+    /// Label of the horizontal axis.
+    pub x_label: String,
+    /// Label of the vertical axis.
+    pub y_label: String,
+    /// Series drawn in order, each in its own colour.
+    pub series: Vec<Series>,
+    /// Logarithmic x axis (e.g. ε ratios).
+    pub log_x: bool,
+}
+
+/// Errors while drawing or writing a figure.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    /// plotters failed (backend or file error).
+    #[error("plot {path}: {message}")]
+    Draw {
+        /// File being written.
+        path: PathBuf,
+        /// plotters' message.
+        message: String,
+    },
+    /// The figure has no finite points to scale the axes by.
+    #[error("plot {0}: no finite points to draw")]
+    Empty(PathBuf),
+}
+
+static FONT: Once = Once::new();
+
+fn register_font() {
+    FONT.call_once(|| {
+        let bytes: &'static [u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .unwrap_or_else(|_| panic!("embedded DejaVuSans.ttf is a valid font"));
+    });
+}
+
+/// Write `<stem>.png` and `<stem>.svg`; returns both paths.
+pub fn save(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
+    register_font();
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    let err = |path: &Path| {
+        let path = path.to_path_buf();
+        move |e: Box<dyn std::error::Error>| PlotError::Draw {
+            path: path.clone(),
+            message: e.to_string(),
+        }
+    };
+    {
+        let root = BitMapBackend::new(&png, (900, 600)).into_drawing_area();
+        draw(figure, &root, &png).map_err(err(&png))??;
+        root.present().map_err(|e| err(&png)(Box::new(e)))?;
+    }
+    {
+        let root = SVGBackend::new(&svg, (900, 600)).into_drawing_area();
+        draw(figure, &root, &svg).map_err(err(&svg))??;
+        root.present().map_err(|e| err(&svg)(Box::new(e)))?;
+    }
+    Ok(vec![png, svg])
+}
+
+type DrawResult = Result<Result<(), PlotError>, Box<dyn std::error::Error>>;
+
+fn draw<DB: DrawingBackend>(
+    figure: &Figure,
+    root: &DrawingArea<DB, Shift>,
+    path: &Path,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let finite: Vec<(f64, f64)> = figure
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().copied())
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && (!figure.log_x || *x > 0.0))
+        .collect();
+    if finite.is_empty() {
+        return Ok(Err(PlotError::Empty(path.to_path_buf())));
+    }
+    let (mut x0, mut x1, mut y0, mut y1) = finite.iter().fold(
+        (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ),
+        |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
+    );
+    // Pad so markers on the boundary stay visible; keep a degenerate range drawable.
+    let pad = |lo: &mut f64, hi: &mut f64, log: bool| {
+        if log {
+            *lo /= 1.5;
+            *hi *= 1.5;
+        } else {
+            let span = (*hi - *lo).max(1e-9);
+            *lo -= 0.05 * span;
+            *hi += 0.05 * span;
+        }
+    };
+    pad(&mut x0, &mut x1, figure.log_x);
+    pad(&mut y0, &mut y1, false);
+    root.fill(&WHITE)?;
+    let mut builder = ChartBuilder::on(root);
+    builder
+        .caption(&figure.title, ("sans-serif", 24))
+        .margin(16)
+        .x_label_area_size(48)
+        .y_label_area_size(64);
+    let palette = |i: usize| {
+        let (r, g, b) = TAB10[i % TAB10.len()];
+        RGBColor(r, g, b).to_rgba()
+    };
+    let legend = emptiest_corner(&finite, (x0, x1), (y0, y1), figure.log_x);
+    let x_range = x0..x1;
+    macro_rules! body {
+        ($chart:expr) => {{
+            let mut chart = $chart;
+            chart
+                .configure_mesh()
+                .x_desc(figure.x_label.as_str())
+                .y_desc(figure.y_label.as_str())
+                .x_label_formatter(&|x| tick_label(*x))
+                .y_label_formatter(&|y| tick_label(*y))
+                .label_style(("sans-serif", 14))
+                .draw()?;
+            for (i, s) in figure.series.iter().enumerate() {
+                let color = palette(i);
+                let pts = s
+                    .points
+                    .iter()
+                    .copied()
+                    .filter(|(x, y)| x.is_finite() && y.is_finite());
+                let anno = match s.kind {
+                    SeriesKind::Markers => {
+                        chart.draw_series(pts.map(|p| Circle::new(p, 5, color.filled())))?
+                    }
+                    SeriesKind::OpenMarkers => {
+                        chart.draw_series(pts.map(|p| Circle::new(p, 8, color.stroke_width(2))))?
+                    }
+                    SeriesKind::Crosses => {
+                        chart.draw_series(pts.map(|p| Cross::new(p, 7, color.stroke_width(3))))?
+                    }
+                    SeriesKind::Line => {
+                        chart.draw_series(LineSeries::new(pts, color.stroke_width(2)))?
+                    }
+                    SeriesKind::Steps => {
+                        let corners: Vec<(f64, f64)> = pts.collect();
+                        chart.draw_series(
+                            corners.iter().map(|&p| Circle::new(p, 4, color.filled())),
+                        )?;
+                        chart
+                            .draw_series(LineSeries::new(steps(&corners), color.stroke_width(2)))?
+                    }
+                    SeriesKind::Region => {
+                        let ring: Vec<(f64, f64)> = pts.collect();
+                        let mut outline = ring.clone();
+                        outline.extend(ring.first().copied());
+                        chart.draw_series([Polygon::new(ring, color.mix(0.18).filled())])?;
+                        chart.draw_series(LineSeries::new(outline, color.stroke_width(2)))?
+                    }
+                    SeriesKind::Levels => {
+                        let (lo, hi) = (x_range.start, x_range.end);
+                        let style = color.mix(0.6).stroke_width(1);
+                        chart.draw_series(
+                            pts.map(|(_, y)| PathElement::new(vec![(lo, y), (hi, y)], style)),
+                        )?
+                    }
+                };
+                anno.label(s.label.as_str()).legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled())
+                });
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 14))
+                .position(legend.clone())
+                .draw()?;
+        }};
+    }
+    if figure.log_x {
+        body!(builder.build_cartesian_2d((x0..x1).log_scale(), y0..y1)?);
+    } else {
+        body!(builder.build_cartesian_2d(x0..x1, y0..y1)?);
+    }
+    Ok(Ok(()))
+}
+
+/// An axis tick as a person writes it: `200k`, `1.5M`, `-19`, `0.25`, `1e-5`.
+/// plotters' own labels print every f64 with a decimal point (`200000.0`). Up to three
+/// significant decimals are kept, so ticks 0.001 apart stay distinct below 1000.
+pub fn tick_label(v: f64) -> String {
+    if !v.is_finite() {
+        return v.to_string();
+    }
+    let a = v.abs();
+    if a != 0.0 && a < 1e-3 {
+        // `{:e}` writes the shortest form: 1e-5, 2.5e-4.
+        return format!("{:e}", (v * 1e12).round() / 1e12);
+    }
+    let (scaled, suffix) = [(1e12, "T"), (1e9, "G"), (1e6, "M"), (1e3, "k")]
+        .into_iter()
+        .find(|(unit, _)| a >= *unit)
+        .map_or((v, ""), |(unit, suffix)| (v / unit, suffix));
+    let mut text = format!("{scaled:.3}");
+    while text.ends_with('0') {
+        text.pop();
+    }
+    if text.ends_with('.') {
+        text.pop();
+    }
+    if text == "-0" {
+        text = "0".into();
+    }
+    text + suffix
+}
+
+/// matplotlib's "tab10" colours: distinct, and readable on white (unlike pure yellow).
+const TAB10: [(u8, u8, u8); 10] = [
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+];
+
+/// The legend's corner: the one whose box of about the legend's size (35% of the width,
+/// 25% of the height) holds the fewest points, lower right first on ties, so the
+/// legend hides as little as it can.
+fn emptiest_corner(
+    points: &[(f64, f64)],
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+    log_x: bool,
+) -> SeriesLabelPosition {
+    let fx = |x: f64| {
+        if log_x {
+            (x.ln() - x0.ln()) / (x1.ln() - x0.ln())
+        } else {
+            (x - x0) / (x1 - x0)
+        }
+    };
+    let fy = |y: f64| (y - y0) / (y1 - y0);
+    let count = |right: bool, top: bool| {
+        points
+            .iter()
+            .filter(|&&(x, y)| {
+                let (u, v) = (fx(x), fy(y));
+                (if right { u >= 0.65 } else { u <= 0.35 })
+                    && (if top { v >= 0.75 } else { v <= 0.25 })
+            })
+            .count()
+    };
+    [
+        (SeriesLabelPosition::LowerRight, count(true, false)),
+        (SeriesLabelPosition::UpperRight, count(true, true)),
+        (SeriesLabelPosition::UpperLeft, count(false, true)),
+        (SeriesLabelPosition::LowerLeft, count(false, false)),
+    ]
+    .into_iter()
+    .min_by_key(|(_, n)| *n)
+    .map(|(corner, _)| corner)
+    .unwrap_or(SeriesLabelPosition::LowerRight)
+}
+
+/// The corners of a step plot through `points`: horizontal first, then vertical.
+fn steps(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(2 * points.len());
+    for (i, &p) in points.iter().enumerate() {
+        if i > 0 {
+            out.push((p.0, points[i - 1].1));
+        }
+        out.push(p);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_png_and_svg_with_the_title_and_labels() {
+        let dir = tempfile::tempdir().unwrap();
+        let figure = Figure {
+            title: "DST front".into(),
+            x_label: "time".into(),
+            y_label: "treasure".into(),
+            series: vec![Series {
+                label: "MO-MPO".into(),
+                points: vec![(-1.0, 0.7), (-19.0, 23.7)],
+                kind: SeriesKind::Markers,
+            }],
+            log_x: false,
+        };
+        let files = save(&figure, &dir.path().join("front")).unwrap();
+        let png = std::fs::read(&files[0]).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        let svg = std::fs::read_to_string(&files[1]).unwrap();
+        for text in ["DST front", "time", "treasure", "MO-MPO"] {
+            assert!(svg.contains(text), "svg lacks {text}");
+        }
+    }
+
+    #[test]
+    fn ticks_read_like_200k_and_1_5m() {
+        let cases = [
+            (0.0, "0"),
+            (-0.0, "0"),
+            (200_000.0, "200k"),
+            (1_500_000.0, "1.5M"),
+            (1_250_000.0, "1.25M"),
+            (12_500.0, "12.5k"),
+            (1e9, "1G"),
+            (-19.0, "-19"),
+            (999.0, "999"),
+            (0.25, "0.25"),
+            (0.30000000000000004, "0.3"), // a tick that is 3 × 0.1 in f64
+            (-2.5, "-2.5"),
+            (0.001, "0.001"),
+            (0.0005, "5e-4"),
+            (1e-5, "1e-5"),
+            (f64::INFINITY, "inf"),
+        ];
+        for (value, text) in cases {
+            assert_eq!(tick_label(value), text, "tick {value}");
+        }
+    }
+
+    #[test]
+    fn drawn_ticks_are_the_short_labels() {
+        let dir = tempfile::tempdir().unwrap();
+        let figure = Figure {
+            title: "t".into(),
+            x_label: "env steps".into(),
+            y_label: "return".into(),
+            series: vec![Series {
+                label: "s".into(),
+                points: vec![(0.0, 0.0), (2_000_000.0, 1.0)],
+                kind: SeriesKind::Line,
+            }],
+            log_x: false,
+        };
+        let files = save(&figure, &dir.path().join("f")).unwrap();
+        let svg = std::fs::read_to_string(&files[1]).unwrap();
+        assert!(svg.contains("\n1M\n"), "no 1M tick: {svg}");
+        assert!(!svg.contains("00000\n"), "a long tick label is left: {svg}");
+    }
+
+    #[test]
+    fn steps_go_across_then_up_or_down() {
+        let corners = steps(&[(0.0, 1.0), (2.0, 3.0), (5.0, 0.5)]);
+        assert_eq!(
+            corners,
+            vec![(0.0, 1.0), (2.0, 1.0), (2.0, 3.0), (5.0, 3.0), (5.0, 0.5)]
+        );
+    }
+
+    #[test]
+    fn every_series_kind_draws_with_its_legend() {
+        let dir = tempfile::tempdir().unwrap();
+        let kinds = [
+            SeriesKind::Markers,
+            SeriesKind::OpenMarkers,
+            SeriesKind::Crosses,
+            SeriesKind::Line,
+            SeriesKind::Steps,
+            SeriesKind::Region,
+            SeriesKind::Levels,
+        ];
+        let figure = Figure {
+            title: "kinds".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: kinds
+                .iter()
+                .enumerate()
+                .map(|(i, &kind)| Series {
+                    label: format!("kind{i}"),
+                    points: vec![(1.0, i as f64), (2.0, i as f64 + 1.0), (3.0, 0.5)],
+                    kind,
+                })
+                .collect(),
+            log_x: true,
+        };
+        let files = save(&figure, &dir.path().join("kinds")).unwrap();
+        let svg = std::fs::read_to_string(&files[1]).unwrap();
+        for i in 0..kinds.len() {
+            assert!(svg.contains(&format!("kind{i}")), "svg lacks kind{i}");
+        }
+        assert!(svg.contains("<polygon"), "the region is a filled polygon");
+    }
+
+    #[test]
+    fn a_figure_without_finite_points_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let figure = Figure {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: vec![Series {
+                label: "s".into(),
+                points: vec![(f64::NAN, 1.0)],
+                kind: SeriesKind::Line,
+            }],
+            log_x: false,
+        };
+        assert!(matches!(
+            save(&figure, &dir.path().join("f")),
+            Err(PlotError::Empty(_))
+        ));
+    }
+}

@@ -1,0 +1,335 @@
+//! The learner loop (Algorithm 3's outer loop): sample snippets, take a learner
+//! step, publish the policy to the actors, log, and checkpoint.
+//!
+//! Runs on its own OS thread (libtorch calls block). Checkpoints of the whole run
+//! (`resume.rs`, `checkpoint/run.rs`) are written every `checkpoint_period` steps
+//! and at the end.
+//!
+//! A population learner steps its P members in lockstep, each with its own run:
+//! schedule (replay, pace, counters), published policy, logs and checkpoints. A step
+//! waits until every running member's schedule allows one. A member whose run stops
+//! without an error (solved with `run.stop_on_solve`, or a signal) gets its final
+//! checkpoint and policy there and leaves the population; the others go on. An error
+//! in any member's run stops them all.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use serde::Serialize;
+use tokio::sync::watch;
+
+use crate::core::algo::{Learner, LearnerStats, SnippetBatch};
+use crate::core::nets::PolicySnapshot;
+use crate::report::metrics::RunFiles;
+use crate::report::tensorboard::Scalar;
+use crate::runtime::checkpoint::CheckpointError;
+use crate::runtime::resume::Checkpointer;
+use crate::runtime::schedule::Schedule;
+
+/// Errors of the learner loop.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerLoopError {
+    /// The learner step failed.
+    #[error(transparent)]
+    Step(#[from] crate::core::algo::LearnerError),
+    /// Writing or reading a checkpoint failed.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// Another member's run failed, which stops the population.
+    #[error("{0}")]
+    Stopped(String),
+    /// A run file could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// File involved.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnerLoopError + '_ {
+    move |source| LearnerLoopError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// One `learner.jsonl` record.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LearnerRecord {
+    /// Learner steps done.
+    pub learner_step: u64,
+    /// Env steps at that moment.
+    pub env_steps: u64,
+    /// Seconds since the run (or resume) started.
+    pub wall_seconds: f64,
+    /// Per critic head: 0.5 * mean squared Retrace error.
+    pub critic_loss: Vec<f32>,
+    /// Per objective: temperature eta_k.
+    pub temperature: Vec<f32>,
+    /// Per objective: realised KL(q_k || pi_old).
+    pub estep_kl: Vec<f32>,
+    /// Lagrange multipliers (alpha_mu, alpha_Sigma) or (alpha); with a per-dimension
+    /// KL constraint, the mean over action dimensions of each.
+    pub alpha: Vec<f32>,
+    /// KL(pi_old || pi) parts before the update (at the end of a V-MPO step of several
+    /// updates); with a per-dimension KL constraint,
+    /// the mean over action dimensions of each (`LearnerStats::policy_kl`).
+    pub policy_kl: Vec<f32>,
+    /// The fraction of its M-step the policy kept after the trust region's projection
+    /// (`LearnerStats::policy_step_kept`).
+    pub policy_step_kept: f32,
+    /// Milliseconds of the step.
+    pub step_ms: f64,
+    /// Env steps per second since the previous record (or the start).
+    pub env_steps_per_second: f64,
+    /// Learner steps per second since the previous record (or the start).
+    pub learner_steps_per_second: f64,
+}
+
+/// Labels for a vector of statistics: objective names when there is one entry per
+/// objective, the two parts of the Gaussian trust region when there are two, else indices.
+fn labels(values: &[f32], objectives: &[String], parts: bool) -> Vec<String> {
+    if !parts && values.len() == objectives.len() {
+        objectives.to_vec()
+    } else if parts && values.len() == 2 {
+        vec!["mean".into(), "covariance".into()]
+    } else {
+        (0..values.len()).map(|i| i.to_string()).collect()
+    }
+}
+
+impl LearnerRecord {
+    /// The record as TensorBoard scalars (`learner/...`, `throughput/...`), labelled by
+    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts,
+    /// each the mean over action dimensions under a per-dimension KL constraint).
+    pub fn scalars(&self, objectives: &[String]) -> Vec<Scalar> {
+        let mut out = Vec::new();
+        let groups: [(&str, &[f32], bool); 5] = [
+            ("critic_loss", &self.critic_loss, false),
+            ("temperature", &self.temperature, false),
+            ("estep_kl", &self.estep_kl, false),
+            ("alpha", &self.alpha, true),
+            ("policy_kl", &self.policy_kl, true),
+        ];
+        for (name, values, parts) in groups {
+            for (label, v) in labels(values, objectives, parts).iter().zip(values) {
+                out.push(Scalar::new(
+                    format!("learner/{name}/{label}"),
+                    f64::from(*v),
+                ));
+            }
+        }
+        out.push(Scalar::new(
+            "learner/policy_step_kept",
+            f64::from(self.policy_step_kept),
+        ));
+        out.push(Scalar::new("learner/step_ms", self.step_ms));
+        out.push(Scalar::new(
+            "learner/learner_steps",
+            self.learner_step as f64,
+        ));
+        out.push(Scalar::new(
+            "throughput/env_steps_per_second",
+            self.env_steps_per_second,
+        ));
+        out.push(Scalar::new(
+            "throughput/learner_steps_per_second",
+            self.learner_steps_per_second,
+        ));
+        out
+    }
+}
+
+/// One member's run as the learner loop sees it.
+#[derive(Debug)]
+pub struct MemberLoop {
+    /// Rate limiter and replay.
+    pub schedule: Arc<Schedule>,
+    /// Where published policies go.
+    pub params: watch::Sender<Arc<PolicySnapshot>>,
+    /// Run files.
+    pub files: Arc<RunFiles>,
+    /// The latest statistics, for the progress display.
+    pub latest: Arc<Mutex<Option<LearnerStats>>>,
+    /// Writes the run's checkpoints.
+    pub checkpointer: Checkpointer,
+}
+
+/// What the learner thread needs.
+#[derive(Debug)]
+pub struct LearnerContext {
+    /// The learner (fresh or restored), of one or more members.
+    pub learner: Learner,
+    /// Each member's run, in member order.
+    pub members: Vec<MemberLoop>,
+    /// Learner steps between publications beyond the catch-up ones (`run_learner`).
+    pub publish_period: u64,
+    /// Learner steps between checkpoints.
+    pub checkpoint_period: u64,
+    /// Learner steps between log records.
+    pub log_period: u64,
+}
+
+/// What the learner loop leaves: the learner, and each member's policy at the end of
+/// its run (its final checkpoint's).
+#[derive(Debug)]
+pub struct LearnerDone {
+    /// The learner.
+    pub learner: Learner,
+    /// Each member's final policy, in member order.
+    pub policies: Vec<PolicySnapshot>,
+}
+
+/// A member's bookkeeping in the loop.
+struct Running {
+    run: MemberLoop,
+    /// (seconds, env steps, learner steps) at the previous record, for the rates.
+    previous: (f64, u64, u64),
+    /// The final policy once the member's run has ended.
+    done: Option<PolicySnapshot>,
+}
+
+/// Run until every member's schedule stops; always writes each member's final
+/// checkpoint. Returns the learner and the members' final policies.
+pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError> {
+    let LearnerContext {
+        mut learner,
+        members,
+        publish_period,
+        checkpoint_period,
+        log_period,
+    } = ctx;
+    let started = Instant::now();
+    let mut members: Vec<Running> = members
+        .into_iter()
+        .map(|run| Running {
+            previous: (0.0, run.schedule.counters().env_steps, learner.step_count()),
+            run,
+            done: None,
+        })
+        .collect();
+    let device = learner.device();
+    let batch_size = learner.settings().batch_size;
+    let result = (|| -> Result<(), LearnerLoopError> {
+        loop {
+            // Lockstep: wait until every running member allows a step.
+            for (p, m) in members.iter_mut().enumerate() {
+                if m.done.is_some() || m.run.schedule.wait_for_work() {
+                    continue;
+                }
+                if let Some(error) = m.run.schedule.counters().error {
+                    return Err(LearnerLoopError::Stopped(error));
+                }
+                m.run.checkpointer.save(&learner, &m.run.schedule)?;
+                m.done = Some(learner.member_policy_snapshot(p));
+            }
+            if members.iter().all(|m| m.done.is_some()) {
+                return Ok(());
+            }
+            let t0 = Instant::now();
+            let sampled: Vec<Option<SnippetBatch>> = members
+                .iter()
+                .map(|m| {
+                    m.done.is_none().then(|| {
+                        let replay = m.run.schedule.replay.lock();
+                        let batch = replay.unwrap_or_else(|e| e.into_inner()).sample(batch_size);
+                        batch.to_device(device)
+                    })
+                })
+                .collect();
+            // A stopped member's slot trains on a running member's batch (a shallow
+            // copy): its results are discarded (its last checkpoint and policy were
+            // taken when it stopped), and its on-policy queue, no longer filled, may
+            // hold less than a batch.
+            let stand_in = sampled
+                .iter()
+                .flatten()
+                .next()
+                .expect("checked above: a member is running")
+                .to_device(device);
+            let batches: Vec<SnippetBatch> = sampled
+                .into_iter()
+                .map(|b| b.unwrap_or_else(|| stand_in.to_device(device)))
+                .collect();
+            // Actors load policies only once the learner has caught up (a population's
+            // actor: with any running member, `wait_for_population_learner`), so those
+            // steps always publish; `publish_period` adds publications in between.
+            let actors_may_load = members
+                .iter()
+                .any(|m| m.done.is_none() && m.run.schedule.next_step_catches_up());
+            let all_stats = learner.step_members(&batches)?;
+            let step_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let n = learner.step_count();
+            for (p, (m, stats)) in members.iter_mut().zip(all_stats).enumerate() {
+                if m.done.is_some() {
+                    continue;
+                }
+                let run = &m.run;
+                if actors_may_load || n % publish_period == 0 {
+                    run.params
+                        .send_replace(Arc::new(learner.member_policy_snapshot(p)));
+                }
+                if n % log_period == 0 {
+                    let (wall_seconds, env_steps) = (
+                        started.elapsed().as_secs_f64(),
+                        run.schedule.counters().env_steps,
+                    );
+                    let previous = m.previous;
+                    let dt = (wall_seconds - previous.0).max(1e-9);
+                    let record = LearnerRecord {
+                        learner_step: n,
+                        env_steps,
+                        wall_seconds,
+                        critic_loss: stats.critic_loss.clone(),
+                        temperature: stats.temperature.clone(),
+                        estep_kl: stats.estep_kl.clone(),
+                        alpha: stats.alpha.clone(),
+                        policy_kl: stats.policy_kl.clone(),
+                        policy_step_kept: stats.policy_step_kept,
+                        step_ms,
+                        env_steps_per_second: env_steps.saturating_sub(previous.1) as f64 / dt,
+                        learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,
+                    };
+                    m.previous = (wall_seconds, env_steps, n);
+                    // Every TensorBoard chart is by env step, as in SB3 and Acme.
+                    let files = &m.run.files;
+                    files
+                        .scalars(env_steps, &record.scalars(files.objectives()))
+                        .map_err(io_err(&files.events_path()))?;
+                    let path = files.dir().join("learner.jsonl");
+                    files.learner(&record).map_err(io_err(&path))?;
+                }
+                *m.run.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
+                if n % checkpoint_period == 0 {
+                    m.run.checkpointer.save(&learner, &m.run.schedule)?;
+                }
+            }
+            // Only now may actors act again: every member's policy of this step is
+            // published, so none acts with the previous one by a race.
+            for m in members.iter().filter(|m| m.done.is_none()) {
+                m.run.schedule.learner_stepped();
+            }
+        }
+    })();
+    if let Err(e) = &result {
+        for m in &members {
+            m.run.schedule.stop(Some(e.to_string()));
+        }
+    }
+    // Whatever happened, leave a checkpoint of the state each member reached.
+    let mut policies = Vec::with_capacity(members.len());
+    for (p, m) in members.iter_mut().enumerate() {
+        if m.done.is_none() {
+            m.run.checkpointer.save(&learner, &m.run.schedule)?;
+        }
+        policies.push(
+            m.done
+                .take()
+                .unwrap_or_else(|| learner.member_policy_snapshot(p)),
+        );
+    }
+    result.map(|()| LearnerDone { learner, policies })
+}
