@@ -1,16 +1,45 @@
-//! Flags more than one subcommand takes: how to reach servers (TLS, token), how to
-//! render videos, and the `--server` value's check.
+//! Flags more than one subcommand takes: what `train` and `sweep` override of a run
+//! config, how to reach servers (TLS, token), how to render videos, and the `--server`
+//! value's check.
 
 use std::path::PathBuf;
 
+use agent::core::learner_config::DeviceChoice;
 use agent::env::connection::ConnectionConfig;
 use agent::report::video::VideoOptions;
 use clap::Args;
 
+/// What `train` and `sweep` take in place of their config's fields (a sweep's base
+/// config: every run's).
+#[derive(Debug, clap::Args)]
+pub(crate) struct RunArgs {
+    /// Server address (repeatable): host:port, https://host:port, dns:NAME:PORT
+    /// (every address of NAME), dns://NAMESERVER/NAME:PORT or file:PATH (one address
+    /// per line, re-read when a server is lost); overrides the config's env.servers
+    /// (default: the config's, or a local server).
+    #[arg(long = "server", value_name = "ADDRESS", value_parser = server_address)]
+    pub(crate) servers: Vec<String>,
+    #[command(flatten)]
+    pub(crate) connection: ConnectionArgs,
+    /// Override run.total_env_steps (a sweep file's total_env_steps: every run's).
+    #[arg(long)]
+    pub(crate) total_env_steps: Option<u64>,
+    /// Override any config field, `dotted.path=toml_value` (repeatable), e.g.
+    /// `--set seed=3 --set learner.mpo.batch_size=64 --set learner.objectives.1.epsilon=0.0`.
+    /// A sweep applies them to its base config after the sweep file's `set`, before the
+    /// grid. With `train --resume` only the budget, periods, checkpoint_replay,
+    /// eval_episodes, servers and device may change (an error names any other field).
+    #[arg(long = "set", value_name = "PATH=VALUE")]
+    pub(crate) overrides: Vec<String>,
+    /// Override learner.device (a sweep's: every run's).
+    #[arg(long, value_enum)]
+    pub(crate) device: Option<DeviceChoice>,
+}
+
 /// How to reach servers that take TLS or a bearer token (env_server's --tls-cert,
 /// --tls-client-ca, --auth-token-file); each flag replaces the config's
 /// `env.connection` field of the same meaning.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub(crate) struct ConnectionArgs {
     /// PEM certificate of the CA that signed the servers' certificates; servers are
     /// then reached over TLS (https).

@@ -11,8 +11,65 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 
+use super::args::{ConnectionArgs, server_address};
+use super::servers::{connect, stop};
+
+/// `agent envs`'s flags.
+#[derive(Debug, clap::Args)]
+pub(crate) struct EnvsArgs {
+    /// Server address host:port, https://host:port, dns:NAME:PORT or
+    /// file:PATH (its first server). Omitted: start a local server
+    /// for the listing.
+    #[arg(long, value_name = "ADDRESS", value_parser = server_address)]
+    server: Option<String>,
+    #[command(flatten)]
+    connection: ConnectionArgs,
+}
+
+impl EnvsArgs {
+    pub(crate) async fn run(self) -> Result<()> {
+        let (client, local) = connect(self.server, self.connection).await?;
+        list_envs(&client).await?;
+        stop(local).await
+    }
+}
+
+/// `agent demo`'s flags.
+#[derive(Debug, clap::Args)]
+pub(crate) struct DemoArgs {
+    /// Server address host:port, https://host:port, dns:NAME:PORT or
+    /// file:PATH (its first server). Omitted: start a local server
+    /// on 127.0.0.1.
+    #[arg(long, value_name = "ADDRESS", value_parser = server_address)]
+    server: Option<String>,
+    #[command(flatten)]
+    connection: ConnectionArgs,
+    /// Env ids to run, in order.
+    #[arg(long = "env", default_values = ["dst", "humanoid-run"])]
+    envs: Vec<String>,
+    /// Instances per session (B).
+    #[arg(long, default_value_t = 4)]
+    num_envs: usize,
+    /// Episodes to finish per env.
+    #[arg(long, default_value_t = 4)]
+    episodes: usize,
+    /// Seed for the envs and the random actions.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+impl DemoArgs {
+    pub(crate) async fn run(self) -> Result<()> {
+        let (client, local) = connect(self.server, self.connection).await?;
+        for env_id in &self.envs {
+            run_env(&client, env_id, self.num_envs, self.episodes, self.seed).await?;
+        }
+        stop(local).await
+    }
+}
+
 /// Print the server's version, capabilities and env ids with their objectives.
-pub(crate) async fn list_envs(client: &EnvClient) -> Result<()> {
+async fn list_envs(client: &EnvClient) -> Result<()> {
     let version = client.version().await?;
     println!(
         "env_server {} (protocol {}) at {}",
@@ -38,7 +95,7 @@ pub(crate) async fn list_envs(client: &EnvClient) -> Result<()> {
 }
 
 /// Step `num_envs` instances of `env_id` with random actions for `episodes` episodes.
-pub(crate) async fn run(
+async fn run_env(
     client: &EnvClient,
     env_id: &str,
     num_envs: usize,

@@ -54,6 +54,14 @@ pub(crate) async fn server_addresses(
     Ok((vec![local.address().to_string()], Some(local)))
 }
 
+/// Stop the local server a command started, if it started one.
+pub(crate) async fn stop(local: Option<LocalServer>) -> Result<()> {
+    if let Some(local) = local {
+        local.stop().await?;
+    }
+    Ok(())
+}
+
 /// A local env_server for this command (plain loopback, so no credentials).
 async fn start_local(connection: &ConnectionConfig) -> Result<LocalServer> {
     refuse_credentials_for_local(connection)?;
