@@ -115,37 +115,9 @@ fn draw<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let finite: Vec<(f64, f64)> = figure
-        .series
-        .iter()
-        .flat_map(|s| s.points.iter().copied())
-        .filter(|(x, y)| x.is_finite() && y.is_finite() && (!figure.log_x || *x > 0.0))
-        .collect();
-    if finite.is_empty() {
+    let Some(b) = Bounds::of(figure) else {
         return Ok(Err(PlotError::Empty(path.to_path_buf())));
-    }
-    let (mut x0, mut x1, mut y0, mut y1) = finite.iter().fold(
-        (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        ),
-        |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
-    );
-    // Pad so markers on the boundary stay visible; keep a degenerate range drawable.
-    let pad = |lo: &mut f64, hi: &mut f64, log: bool| {
-        if log {
-            *lo /= 1.5;
-            *hi *= 1.5;
-        } else {
-            let span = (*hi - *lo).max(1e-9);
-            *lo -= 0.05 * span;
-            *hi += 0.05 * span;
-        }
     };
-    pad(&mut x0, &mut x1, figure.log_x);
-    pad(&mut y0, &mut y1, false);
     root.fill(&WHITE)?;
     let mut builder = ChartBuilder::on(root);
     builder
@@ -153,12 +125,7 @@ where
         .margin(16)
         .x_label_area_size(48)
         .y_label_area_size(64);
-    let palette = |i: usize| {
-        let (r, g, b) = TAB10[i % TAB10.len()];
-        RGBColor(r, g, b).to_rgba()
-    };
-    let legend = emptiest_corner(&finite, (x0, x1), (y0, y1), figure.log_x);
-    let x_range = x0..x1;
+    // One body for both x axes: a log and a linear chart are different types.
     macro_rules! body {
         ($chart:expr) => {{
             let mut chart = $chart;
@@ -171,67 +138,128 @@ where
                 .label_style(("sans-serif", 14))
                 .draw()?;
             for (i, s) in figure.series.iter().enumerate() {
-                let color = palette(i);
-                let pts = s
-                    .points
-                    .iter()
-                    .copied()
-                    .filter(|(x, y)| x.is_finite() && y.is_finite());
-                let anno = match s.kind {
-                    SeriesKind::Markers => {
-                        chart.draw_series(pts.map(|p| Circle::new(p, 5, color.filled())))?
-                    }
-                    SeriesKind::OpenMarkers => {
-                        chart.draw_series(pts.map(|p| Circle::new(p, 8, color.stroke_width(2))))?
-                    }
-                    SeriesKind::Crosses => {
-                        chart.draw_series(pts.map(|p| Cross::new(p, 7, color.stroke_width(3))))?
-                    }
-                    SeriesKind::Line => {
-                        chart.draw_series(LineSeries::new(pts, color.stroke_width(2)))?
-                    }
-                    SeriesKind::Steps => {
-                        let corners: Vec<(f64, f64)> = pts.collect();
-                        chart.draw_series(
-                            corners.iter().map(|&p| Circle::new(p, 4, color.filled())),
-                        )?;
-                        chart
-                            .draw_series(LineSeries::new(steps(&corners), color.stroke_width(2)))?
-                    }
-                    SeriesKind::Region => {
-                        let ring: Vec<(f64, f64)> = pts.collect();
-                        let mut outline = ring.clone();
-                        outline.extend(ring.first().copied());
-                        chart.draw_series([Polygon::new(ring, color.mix(0.18).filled())])?;
-                        chart.draw_series(LineSeries::new(outline, color.stroke_width(2)))?
-                    }
-                    SeriesKind::Levels => {
-                        let (lo, hi) = (x_range.start, x_range.end);
-                        let style = color.mix(0.6).stroke_width(1);
-                        chart.draw_series(
-                            pts.map(|(_, y)| PathElement::new(vec![(lo, y), (hi, y)], style)),
-                        )?
-                    }
-                };
-                anno.label(s.label.as_str()).legend(move |(x, y)| {
-                    Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled())
-                });
+                let (r, g, bl) = TAB10[i % TAB10.len()];
+                draw_series(&mut chart, s, RGBColor(r, g, bl).to_rgba(), (b.x0, b.x1))?;
             }
             chart
                 .configure_series_labels()
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
                 .label_font(("sans-serif", 14))
-                .position(legend.clone())
+                .position(b.legend.clone())
                 .draw()?;
         }};
     }
     if figure.log_x {
-        body!(builder.build_cartesian_2d((x0..x1).log_scale(), y0..y1)?);
+        body!(builder.build_cartesian_2d((b.x0..b.x1).log_scale(), b.y0..b.y1)?);
     } else {
-        body!(builder.build_cartesian_2d(x0..x1, y0..y1)?);
+        body!(builder.build_cartesian_2d(b.x0..b.x1, b.y0..b.y1)?);
     }
     Ok(Ok(()))
+}
+
+/// A figure's axis ranges (its finite points, padded) and where its legend goes.
+struct Bounds {
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+    legend: SeriesLabelPosition,
+}
+
+impl Bounds {
+    /// `None` when the figure has no finite point (none > 0 on a log x axis).
+    fn of(figure: &Figure) -> Option<Bounds> {
+        let finite: Vec<(f64, f64)> = figure
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().copied())
+            .filter(|(x, y)| x.is_finite() && y.is_finite() && (!figure.log_x || *x > 0.0))
+            .collect();
+        if finite.is_empty() {
+            return None;
+        }
+        let (mut x0, mut x1, mut y0, mut y1) = finite.iter().fold(
+            (
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            ),
+            |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
+        );
+        // Pad so markers on the boundary stay visible; keep a degenerate range drawable.
+        let pad = |lo: &mut f64, hi: &mut f64, log: bool| {
+            if log {
+                *lo /= 1.5;
+                *hi *= 1.5;
+            } else {
+                let span = (*hi - *lo).max(1e-9);
+                *lo -= 0.05 * span;
+                *hi += 0.05 * span;
+            }
+        };
+        pad(&mut x0, &mut x1, figure.log_x);
+        pad(&mut y0, &mut y1, false);
+        let legend = emptiest_corner(&finite, (x0, x1), (y0, y1), figure.log_x);
+        Some(Bounds {
+            x0,
+            x1,
+            y0,
+            y1,
+            legend,
+        })
+    }
+}
+
+/// Draws one series in its kind's style, with its legend entry; `x_range` is the axis's
+/// (a `Levels` line spans it).
+fn draw_series<DB, CT>(
+    chart: &mut ChartContext<'_, DB, CT>,
+    s: &Series,
+    color: RGBAColor,
+    x_range: (f64, f64),
+) -> Result<(), Box<dyn std::error::Error>>
+where
+    DB: DrawingBackend,
+    DB::ErrorType: 'static,
+    CT: CoordTranslate<From = (f64, f64)>,
+{
+    let pts = s
+        .points
+        .iter()
+        .copied()
+        .filter(|(x, y)| x.is_finite() && y.is_finite());
+    let anno = match s.kind {
+        SeriesKind::Markers => chart.draw_series(pts.map(|p| Circle::new(p, 5, color.filled())))?,
+        SeriesKind::OpenMarkers => {
+            chart.draw_series(pts.map(|p| Circle::new(p, 8, color.stroke_width(2))))?
+        }
+        SeriesKind::Crosses => {
+            chart.draw_series(pts.map(|p| Cross::new(p, 7, color.stroke_width(3))))?
+        }
+        SeriesKind::Line => chart.draw_series(LineSeries::new(pts, color.stroke_width(2)))?,
+        SeriesKind::Steps => {
+            let corners: Vec<(f64, f64)> = pts.collect();
+            chart.draw_series(corners.iter().map(|&p| Circle::new(p, 4, color.filled())))?;
+            chart.draw_series(LineSeries::new(steps(&corners), color.stroke_width(2)))?
+        }
+        SeriesKind::Region => {
+            let ring: Vec<(f64, f64)> = pts.collect();
+            let mut outline = ring.clone();
+            outline.extend(ring.first().copied());
+            chart.draw_series([Polygon::new(ring, color.mix(0.18).filled())])?;
+            chart.draw_series(LineSeries::new(outline, color.stroke_width(2)))?
+        }
+        SeriesKind::Levels => {
+            let (lo, hi) = x_range;
+            let style = color.mix(0.6).stroke_width(1);
+            chart.draw_series(pts.map(|(_, y)| PathElement::new(vec![(lo, y), (hi, y)], style)))?
+        }
+    };
+    anno.label(s.label.as_str())
+        .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
+    Ok(())
 }
 
 /// An axis tick as a person writes it: `200k`, `1.5M`, `-19`, `0.25`, `1e-5`.

@@ -165,12 +165,20 @@ pub struct LearnerContext {
     pub learner: Learner,
     /// Each member's run, in member order.
     pub members: Vec<MemberLoop>,
-    /// Learner steps between publications beyond the catch-up ones (`run_learner`).
-    pub publish_period: u64,
-    /// Learner steps between checkpoints.
-    pub checkpoint_period: u64,
-    /// Learner steps between log records.
-    pub log_period: u64,
+    /// How often it publishes, checkpoints and logs.
+    pub periods: LoopPeriods,
+}
+
+/// The learner loop's periods, in learner steps (each at least 1, `run_config`'s
+/// `validate`).
+#[derive(Debug, Clone, Copy)]
+pub struct LoopPeriods {
+    /// Steps between publications beyond the catch-up ones (`run_learner`).
+    pub publish: u64,
+    /// Steps between checkpoints.
+    pub checkpoint: u64,
+    /// Steps between log records.
+    pub log: u64,
 }
 
 /// What the learner loop leaves: the learner, and each member's policy at the end of
@@ -183,11 +191,19 @@ pub struct LearnerDone {
     pub policies: Vec<PolicySnapshot>,
 }
 
+/// Where a member's rates were last measured from.
+#[derive(Debug, Clone, Copy)]
+struct Mark {
+    wall_seconds: f64,
+    env_steps: u64,
+    learner_steps: u64,
+}
+
 /// A member's bookkeeping in the loop.
 struct Running {
     run: MemberLoop,
-    /// (seconds, env steps, learner steps) at the previous record, for the rates.
-    previous: (f64, u64, u64),
+    /// The previous log record's mark, for the rates.
+    previous: Mark,
     /// The final policy once the member's run has ended.
     done: Option<PolicySnapshot>,
 }
@@ -198,62 +214,28 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
     let LearnerContext {
         mut learner,
         members,
-        publish_period,
-        checkpoint_period,
-        log_period,
+        periods,
     } = ctx;
     let started = Instant::now();
     let mut members: Vec<Running> = members
         .into_iter()
         .map(|run| Running {
-            previous: (0.0, run.schedule.counters().env_steps, learner.step_count()),
+            previous: Mark {
+                wall_seconds: 0.0,
+                env_steps: run.schedule.counters().env_steps,
+                learner_steps: learner.step_count(),
+            },
             run,
             done: None,
         })
         .collect();
-    let device = learner.device();
-    let batch_size = learner.settings().batch_size;
     let result = (|| -> Result<(), LearnerLoopError> {
         loop {
-            // Lockstep: wait until every running member allows a step.
-            for (p, m) in members.iter_mut().enumerate() {
-                if m.done.is_some() || m.run.schedule.wait_for_work() {
-                    continue;
-                }
-                if let Some(error) = m.run.schedule.counters().error {
-                    return Err(LearnerLoopError::Stopped(error));
-                }
-                m.run.checkpointer.save(&learner, &m.run.schedule)?;
-                m.done = Some(learner.member_policy_snapshot(p));
-            }
-            if members.iter().all(|m| m.done.is_some()) {
+            if wait_for_members(&mut members, &learner)? {
                 return Ok(());
             }
             let t0 = Instant::now();
-            let sampled: Vec<Option<SnippetBatch>> = members
-                .iter()
-                .map(|m| {
-                    m.done.is_none().then(|| {
-                        let replay = m.run.schedule.replay.lock();
-                        let batch = replay.unwrap_or_else(|e| e.into_inner()).sample(batch_size);
-                        batch.to_device(device)
-                    })
-                })
-                .collect();
-            // A stopped member's slot trains on a running member's batch (a shallow
-            // copy): its results are discarded (its last checkpoint and policy were
-            // taken when it stopped), and its on-policy queue, no longer filled, may
-            // hold less than a batch.
-            let stand_in = sampled
-                .iter()
-                .flatten()
-                .next()
-                .expect("checked above: a member is running")
-                .to_device(device);
-            let batches: Vec<SnippetBatch> = sampled
-                .into_iter()
-                .map(|b| b.unwrap_or_else(|| stand_in.to_device(device)))
-                .collect();
+            let batches = sample_batches(&members, &learner);
             // Actors load policies only once the learner has caught up (a population's
             // actor: with any running member, `wait_for_population_learner`), so those
             // steps always publish; `publish_period` adds publications in between.
@@ -261,50 +243,15 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                 .iter()
                 .any(|m| m.done.is_none() && m.run.schedule.next_step_catches_up());
             let all_stats = learner.step_members(&batches)?;
-            let step_ms = t0.elapsed().as_secs_f64() * 1e3;
-            let n = learner.step_count();
+            let step = Stepped {
+                step_ms: t0.elapsed().as_secs_f64() * 1e3,
+                n: learner.step_count(),
+                actors_may_load,
+                started,
+            };
             for (p, (m, stats)) in members.iter_mut().zip(all_stats).enumerate() {
-                if m.done.is_some() {
-                    continue;
-                }
-                let run = &m.run;
-                if actors_may_load || n % publish_period == 0 {
-                    run.params
-                        .send_replace(Arc::new(learner.member_policy_snapshot(p)));
-                }
-                if n % log_period == 0 {
-                    let (wall_seconds, env_steps) = (
-                        started.elapsed().as_secs_f64(),
-                        run.schedule.counters().env_steps,
-                    );
-                    let previous = m.previous;
-                    let dt = (wall_seconds - previous.0).max(1e-9);
-                    let record = LearnerRecord {
-                        learner_step: n,
-                        env_steps,
-                        wall_seconds,
-                        critic_loss: stats.critic_loss.clone(),
-                        temperature: stats.temperature.clone(),
-                        estep_kl: stats.estep_kl.clone(),
-                        alpha: stats.alpha.clone(),
-                        policy_kl: stats.policy_kl.clone(),
-                        policy_step_kept: stats.policy_step_kept,
-                        step_ms,
-                        env_steps_per_second: env_steps.saturating_sub(previous.1) as f64 / dt,
-                        learner_steps_per_second: n.saturating_sub(previous.2) as f64 / dt,
-                    };
-                    m.previous = (wall_seconds, env_steps, n);
-                    // Every TensorBoard chart is by env step, as in SB3 and Acme.
-                    let files = &m.run.files;
-                    files
-                        .scalars(env_steps, &record.scalars(files.objectives()))
-                        .map_err(io_err(&files.events_path()))?;
-                    let path = files.dir().join("learner.jsonl");
-                    files.learner(&record).map_err(io_err(&path))?;
-                }
-                *m.run.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
-                if n % checkpoint_period == 0 {
-                    m.run.checkpointer.save(&learner, &m.run.schedule)?;
+                if m.done.is_none() {
+                    after_step(m, p, stats, &learner, &step, periods)?;
                 }
             }
             // Only now may actors act again: every member's policy of this step is
@@ -332,4 +279,121 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
         );
     }
     result.map(|()| LearnerDone { learner, policies })
+}
+
+/// One learner step as each member's bookkeeping needs it.
+struct Stepped {
+    step_ms: f64,
+    /// The learner's step count after it.
+    n: u64,
+    /// Whether an actor may load a policy before the next step (then it is published).
+    actors_may_load: bool,
+    /// When the loop started (wall times of log records).
+    started: Instant,
+}
+
+/// Lockstep: waits until every running member allows a step. A member whose run
+/// stopped without an error gets its final checkpoint and policy here and leaves the
+/// population; whether every member has.
+fn wait_for_members(members: &mut [Running], learner: &Learner) -> Result<bool, LearnerLoopError> {
+    for (p, m) in members.iter_mut().enumerate() {
+        if m.done.is_some() || m.run.schedule.wait_for_work() {
+            continue;
+        }
+        if let Some(error) = m.run.schedule.counters().error {
+            return Err(LearnerLoopError::Stopped(error));
+        }
+        m.run.checkpointer.save(learner, &m.run.schedule)?;
+        m.done = Some(learner.member_policy_snapshot(p));
+    }
+    Ok(members.iter().all(|m| m.done.is_some()))
+}
+
+/// A batch per member from its own replay. A stopped member's slot trains on a running
+/// member's batch (a shallow copy): its results are discarded (its last checkpoint and
+/// policy were taken when it stopped), and its on-policy queue, no longer filled, may
+/// hold less than a batch.
+fn sample_batches(members: &[Running], learner: &Learner) -> Vec<SnippetBatch> {
+    let device = learner.device();
+    let batch_size = learner.settings().batch_size;
+    let sampled: Vec<Option<SnippetBatch>> = members
+        .iter()
+        .map(|m| {
+            m.done.is_none().then(|| {
+                let replay = m.run.schedule.replay.lock();
+                let batch = replay.unwrap_or_else(|e| e.into_inner()).sample(batch_size);
+                batch.to_device(device)
+            })
+        })
+        .collect();
+    let stand_in = sampled
+        .iter()
+        .flatten()
+        .next()
+        .expect("checked above: a member is running")
+        .to_device(device);
+    sampled
+        .into_iter()
+        .map(|b| b.unwrap_or_else(|| stand_in.to_device(device)))
+        .collect()
+}
+
+/// A running member after a learner step: publish its policy, log, keep its latest
+/// statistics for the progress display, and checkpoint, each on its period.
+fn after_step(
+    m: &mut Running,
+    p: usize,
+    stats: LearnerStats,
+    learner: &Learner,
+    step: &Stepped,
+    periods: LoopPeriods,
+) -> Result<(), LearnerLoopError> {
+    let n = step.n;
+    if step.actors_may_load || n.is_multiple_of(periods.publish) {
+        m.run
+            .params
+            .send_replace(Arc::new(learner.member_policy_snapshot(p)));
+    }
+    if n.is_multiple_of(periods.log) {
+        log_step(m, &stats, step)?;
+    }
+    *m.run.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
+    if n.is_multiple_of(periods.checkpoint) {
+        m.run.checkpointer.save(learner, &m.run.schedule)?;
+    }
+    Ok(())
+}
+
+/// A member's log record of this step: learner.jsonl and TensorBoard.
+fn log_step(m: &mut Running, stats: &LearnerStats, step: &Stepped) -> Result<(), LearnerLoopError> {
+    let now = Mark {
+        wall_seconds: step.started.elapsed().as_secs_f64(),
+        env_steps: m.run.schedule.counters().env_steps,
+        learner_steps: step.n,
+    };
+    let previous = m.previous;
+    let dt = (now.wall_seconds - previous.wall_seconds).max(1e-9);
+    let record = LearnerRecord {
+        learner_step: step.n,
+        env_steps: now.env_steps,
+        wall_seconds: now.wall_seconds,
+        critic_loss: stats.critic_loss.clone(),
+        temperature: stats.temperature.clone(),
+        estep_kl: stats.estep_kl.clone(),
+        alpha: stats.alpha.clone(),
+        policy_kl: stats.policy_kl.clone(),
+        policy_step_kept: stats.policy_step_kept,
+        step_ms: step.step_ms,
+        env_steps_per_second: now.env_steps.saturating_sub(previous.env_steps) as f64 / dt,
+        learner_steps_per_second: step.n.saturating_sub(previous.learner_steps) as f64 / dt,
+    };
+    m.previous = now;
+    // Every TensorBoard chart is by env step, as in SB3 and Acme.
+    let files = &m.run.files;
+    files
+        .scalars(now.env_steps, &record.scalars(files.objectives()))
+        .map_err(io_err(&files.events_path()))?;
+    let path = files.dir().join("learner.jsonl");
+    files.learner(&record).map_err(io_err(&path))?;
+    Ok(())
 }

@@ -57,14 +57,8 @@ fn reported_wall_seconds(dir: &Path) -> Option<f64> {
     serde_json::from_str::<serde_json::Value>(&text).ok()?["wall_seconds"].as_f64()
 }
 
-/// Measure and write the front of `folders`' jobs into `out`. One folder reports its
-/// own jobs (a shard alone, its slice); several must agree on the sweep and hold
-/// each of its jobs exactly once.
-pub(super) fn write_report(
-    folders: &[SweepFolder],
-    out: PathBuf,
-    wall_seconds: f64,
-) -> Result<FrontSummary, SweepError> {
+/// Folders of one sweep: the same sweep file and base config as the first.
+fn check_comparable(folders: &[SweepFolder]) -> Result<(), SweepError> {
     let first = &folders[0];
     let (sweep, base) = first.comparable();
     for f in &folders[1..] {
@@ -83,6 +77,12 @@ pub(super) fn write_report(
             });
         }
     }
+    Ok(())
+}
+
+/// Every job of `folders` by index, each in exactly one folder; several folders must
+/// together hold every job of the sweep.
+fn jobs_once(folders: &[SweepFolder]) -> Result<BTreeMap<usize, (&SweepFolder, &Job)>, SweepError> {
     let mut jobs: BTreeMap<usize, (&SweepFolder, &Job)> = BTreeMap::new();
     for f in folders {
         for job in &f.jobs {
@@ -96,7 +96,7 @@ pub(super) fn write_report(
         }
     }
     if folders.len() > 1 {
-        let missing: Vec<String> = all_jobs(&first.sweep)
+        let missing: Vec<String> = all_jobs(&folders[0].sweep)
             .iter()
             .filter(|j| !jobs.contains_key(&j.index))
             .map(Job::label)
@@ -108,6 +108,19 @@ pub(super) fn write_report(
             });
         }
     }
+    Ok(jobs)
+}
+
+/// Measure and write the front of `folders`' jobs into `out`. One folder reports its
+/// own jobs (a shard alone, its slice); several must agree on the sweep and hold
+/// each of its jobs exactly once.
+pub(super) fn write_report(
+    folders: &[SweepFolder],
+    out: PathBuf,
+    wall_seconds: f64,
+) -> Result<FrontSummary, SweepError> {
+    check_comparable(folders)?;
+    let jobs = jobs_once(folders)?;
     let mut objectives: Option<Vec<String>> = None;
     let mut points = Vec::with_capacity(jobs.len());
     for (folder, job) in jobs.values() {
@@ -140,6 +153,7 @@ pub(super) fn write_report(
             on_front: false,
         });
     }
+    let (sweep, _) = folders[0].comparable();
     let report = FrontReport {
         name: &sweep.name,
         reference_point: &sweep.reference_point,

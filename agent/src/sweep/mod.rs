@@ -179,37 +179,74 @@ pub async fn run(
     video: Option<&VideoOptions>,
 ) -> Result<FrontSummary, SweepError> {
     let started = Instant::now();
-    let bar = if progress {
-        indicatif::ProgressBar::new(folder.jobs.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:30} run {pos}/{len} [{elapsed_precise}<{eta}] {msg}",
-        )
-        .expect("valid template"),
-    );
-    // A bar drawn to a non-terminal is hidden and would swallow println.
-    let say = |line: String| {
-        if bar.is_hidden() {
+    let progress = Progress::new(progress, folder.jobs.len());
+    let parallel = folder.sweep.parallel.max(1);
+    let units = plan_units(folder, &progress, parallel)?;
+    let runs = futures::stream::iter(
+        units
+            .into_iter()
+            .map(|unit| train_unit(unit, folder, addresses, video, &progress)),
+    )
+    .buffer_unordered(parallel)
+    .collect::<Vec<_>>()
+    .await;
+    runs.into_iter().collect::<Result<Vec<()>, _>>()?;
+    progress.bar.finish_and_clear();
+    merge::write_report(
+        std::slice::from_ref(folder),
+        folder.dir.clone(),
+        started.elapsed().as_secs_f64(),
+    )
+}
+
+/// A sweep's progress: a bar over its runs, and lines printed above it.
+struct Progress {
+    bar: indicatif::ProgressBar,
+}
+
+impl Progress {
+    fn new(shown: bool, runs: usize) -> Self {
+        let bar = if shown {
+            indicatif::ProgressBar::new(runs as u64)
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:30} run {pos}/{len} [{elapsed_precise}<{eta}] {msg}",
+            )
+            .expect("valid template"),
+        );
+        Progress { bar }
+    }
+
+    fn say(&self, line: String) {
+        // A bar drawn to a non-terminal is hidden and would swallow println.
+        if self.bar.is_hidden() {
             tracing::info!("{}", line.trim())
         } else {
-            bar.println(line)
+            self.bar.println(line)
         }
-    };
+    }
+}
+
+/// What is left to train of `folder`'s jobs, as units that each train as one
+/// population: finished jobs are kept (and counted done), a checkpointed job resumes
+/// alone, an abandoned one (a folder without a checkpoint) starts over.
+fn plan_units<'a>(
+    folder: &'a SweepFolder,
+    progress: &Progress,
+    parallel: usize,
+) -> Result<Vec<Vec<Unit<'a>>>, SweepError> {
     let mut units: Vec<Vec<Unit>> = Vec::new();
     let mut fresh = Vec::new();
     for job in &folder.jobs {
         let cfg = job_config(folder, job)?;
         match folder.job_state(job)? {
             JobState::Finished(run, _) => {
-                say(format!(
-                    "  {}: finished in {}, kept",
-                    job.label(),
-                    run.display()
-                ));
-                bar.inc(1);
+                let label = job.label();
+                progress.say(format!("  {label}: finished in {}, kept", run.display()));
+                progress.bar.inc(1);
             }
             JobState::Checkpointed(run) => {
                 // As `agent train --resume`: the run continues as it was configured.
@@ -218,7 +255,7 @@ pub async fn run(
                 // have been moved, or be named by another path (relative, a mount).
                 stored.run.runs_dir = cfg.run.runs_dir.clone();
                 cfg.check_resume_changes(&stored)?;
-                say(format!("  {}: resuming {}", job.label(), run.display()));
+                progress.say(format!("  {}: resuming {}", job.label(), run.display()));
                 units.push(vec![Unit {
                     job,
                     cfg,
@@ -226,9 +263,9 @@ pub async fn run(
                 }]);
             }
             JobState::Abandoned(run) => {
-                say(format!(
-                    "  {}: {} has no checkpoint, starting over",
-                    job.label(),
+                let label = job.label();
+                progress.say(format!(
+                    "  {label}: {} has no checkpoint, starting over",
                     run.display()
                 ));
                 std::fs::remove_dir_all(&run).map_err(|source| SweepError::Io {
@@ -240,58 +277,47 @@ pub async fn run(
             JobState::Fresh => fresh.push((job, cfg)),
         }
     }
-    let parallel = folder.sweep.parallel.max(1);
     units.extend(populations(fresh, folder.sweep.population, parallel));
-    let runs = futures::stream::iter(units.into_iter().map(|unit| {
-        let say = &say;
-        let bar = bar.clone();
-        async move {
-            let resume = unit[0].resume.clone();
-            let cfgs = unit.iter().map(|u| u.cfg.clone()).collect();
-            let summaries = train_population(
-                cfgs,
-                addresses,
-                TrainOptions {
-                    resume,
-                    progress: false,
-                    video: video.map(|options| VideoPlan {
-                        every: None,
-                        options: options.clone(),
-                    }),
-                },
-            )
-            .await?;
-            for (u, s) in unit.iter().zip(&summaries) {
-                if let Some(signal) = &s.interrupted {
-                    // The signal reached every run: end the sweep instead of starting more.
-                    return Err(SweepError::Train(TrainError::Stopped(format!(
-                        "interrupted ({signal}); run {} has its checkpoint and report, \
-                         and agent sweep --resume {} continues the sweep",
-                        s.run_dir.display(),
-                        folder.dir.display()
-                    ))));
-                }
-                say(format!(
-                    "  {:<40} seed {}: eval return {}",
-                    setting_label(&u.job.setting),
-                    u.job.seed,
-                    format_vector(&s.eval_return)
-                ));
-                bar.inc(1);
-            }
-            Ok::<_, SweepError>(())
+    Ok(units)
+}
+
+/// Trains one unit as a population and reports each of its runs; a signal that
+/// interrupted them ends the sweep (it reached every run) instead of starting more.
+async fn train_unit(
+    unit: Vec<Unit<'_>>,
+    folder: &SweepFolder,
+    addresses: &[String],
+    video: Option<&VideoOptions>,
+    progress: &Progress,
+) -> Result<(), SweepError> {
+    let options = TrainOptions {
+        resume: unit[0].resume.clone(),
+        progress: false,
+        video: video.map(|options| VideoPlan {
+            every: None,
+            options: options.clone(),
+        }),
+    };
+    let cfgs = unit.iter().map(|u| u.cfg.clone()).collect();
+    let summaries = train_population(cfgs, addresses, options).await?;
+    for (u, s) in unit.iter().zip(&summaries) {
+        if let Some(signal) = &s.interrupted {
+            return Err(SweepError::Train(TrainError::Stopped(format!(
+                "interrupted ({signal}); run {} has its checkpoint and report, \
+                 and agent sweep --resume {} continues the sweep",
+                s.run_dir.display(),
+                folder.dir.display()
+            ))));
         }
-    }))
-    .buffer_unordered(parallel)
-    .collect::<Vec<_>>()
-    .await;
-    runs.into_iter().collect::<Result<Vec<()>, _>>()?;
-    bar.finish_and_clear();
-    merge::write_report(
-        std::slice::from_ref(folder),
-        folder.dir.clone(),
-        started.elapsed().as_secs_f64(),
-    )
+        progress.say(format!(
+            "  {:<40} seed {}: eval return {}",
+            setting_label(&u.job.setting),
+            u.job.seed,
+            format_vector(&s.eval_return)
+        ));
+        progress.bar.inc(1);
+    }
+    Ok(())
 }
 
 /// One job as it will train.

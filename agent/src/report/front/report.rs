@@ -4,13 +4,42 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use super::{FrontError, FrontReport, FrontSummary, invalid};
+use super::{FrontError, FrontReport, FrontSummary, RatioPlot, invalid};
 use crate::report::metrics::write_json_atomic;
 use crate::report::pareto::attainment_surface;
 use crate::report::plot::{Figure, Series, SeriesKind};
 
+/// Writes every file of a sweep's front into its folder.
 pub(super) fn write_outputs(sweep: &FrontReport<'_>, s: &FrontSummary) -> Result<(), FrontError> {
-    let io = |path: PathBuf| move |source| FrontError::Io { path, source };
+    let csv = points_csv(s);
+    let points_csv = s.dir.join("points.csv");
+    std::fs::write(&points_csv, &csv).map_err(io(points_csv.clone()))?;
+    let front: Vec<&str> = csv
+        .lines()
+        .enumerate()
+        .filter(|(i, l)| *i == 0 || l.contains(",true,"))
+        .map(|(_, l)| l)
+        .collect();
+    let front_csv = s.dir.join("front.csv");
+    std::fs::write(&front_csv, front.join("\n") + "\n").map_err(io(front_csv.clone()))?;
+    write_json_atomic(&s.dir.join("summary.json"), s).map_err(io(s.dir.join("summary.json")))?;
+    if s.objectives.len() >= 2 {
+        crate::report::plot::save(&front_figure(sweep.name, s), &s.dir.join("front"))?;
+    }
+    if let Some(rp) = sweep.ratio_plot {
+        crate::report::plot::save(&ratio_figure(sweep.name, rp, s)?, &s.dir.join("ratio"))?;
+    }
+    Ok(())
+}
+
+/// Names `path` in an I/O error.
+fn io(path: PathBuf) -> impl FnOnce(std::io::Error) -> FrontError {
+    move |source| FrontError::Io { path, source }
+}
+
+/// `points.csv`: a row per run (setting, seed, returns, discounted returns, whether it
+/// is on the front, its folder).
+fn points_csv(s: &FrontSummary) -> String {
     let names: Vec<String> = s
         .points
         .first()
@@ -43,74 +72,62 @@ pub(super) fn write_outputs(sweep: &FrontReport<'_>, s: &FrontSummary) -> Result
         csv.push_str(&row.join(","));
         csv.push('\n');
     }
-    let points_csv = s.dir.join("points.csv");
-    std::fs::write(&points_csv, &csv).map_err(io(points_csv.clone()))?;
-    let front: Vec<&str> = csv
-        .lines()
-        .enumerate()
-        .filter(|(i, l)| *i == 0 || l.contains(",true,"))
-        .map(|(_, l)| l)
+    csv
+}
+
+/// The ε-ratio plot (the paper's Fig. 5): `y_objective`'s return against the ratio of
+/// two objectives' ε, a series per value of the denominator's ε.
+fn ratio_figure(name: &str, rp: &RatioPlot, s: &FrontSummary) -> Result<Figure, FrontError> {
+    let y = s
+        .objectives
+        .iter()
+        .position(|o| o == &rp.y_objective)
+        .ok_or_else(|| invalid("ratio_plot.y_objective", "an objective", &rp.y_objective))?;
+    let mut by_series: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for p in &s.points {
+        let ratio = p.setting[&rp.numerator] / p.setting[&rp.denominator];
+        by_series
+            .entry(format!(
+                "ε_{} = {}",
+                rp.denominator, p.setting[&rp.denominator]
+            ))
+            .or_default()
+            .push((ratio, p.eval_return[y]));
+    }
+    // Steps, not lines: between two tried ratios nothing says the policy collects
+    // anything in between (DST's treasures are discrete).
+    let mut series: Vec<Series> = by_series
+        .into_iter()
+        .map(|(label, mut points)| {
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            Series {
+                label,
+                points,
+                kind: SeriesKind::Steps,
+            }
+        })
         .collect();
-    let front_csv = s.dir.join("front.csv");
-    std::fs::write(&front_csv, front.join("\n") + "\n").map_err(io(front_csv.clone()))?;
-    write_json_atomic(&s.dir.join("summary.json"), s).map_err(io(s.dir.join("summary.json")))?;
-    if s.objectives.len() >= 2 {
-        crate::report::plot::save(&front_figure(sweep.name, s), &s.dir.join("front"))?;
-    }
-    if let Some(rp) = sweep.ratio_plot {
-        let y = s
-            .objectives
+    if !s.true_front.is_empty() {
+        let x = series
             .iter()
-            .position(|o| o == &rp.y_objective)
-            .ok_or_else(|| invalid("ratio_plot.y_objective", "an objective", &rp.y_objective))?;
-        let mut by_series: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
-        for p in &s.points {
-            let ratio = p.setting[&rp.numerator] / p.setting[&rp.denominator];
-            by_series
-                .entry(format!(
-                    "ε_{} = {}",
-                    rp.denominator, p.setting[&rp.denominator]
-                ))
-                .or_default()
-                .push((ratio, p.eval_return[y]));
-        }
-        // Steps, not lines: between two tried ratios nothing says the policy collects
-        // anything in between (DST's treasures are discrete).
-        let mut series: Vec<Series> = by_series
-            .into_iter()
-            .map(|(label, mut points)| {
-                points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                Series {
-                    label,
-                    points,
-                    kind: SeriesKind::Steps,
-                }
-            })
-            .collect();
-        if !s.true_front.is_empty() {
-            let x = series
-                .iter()
-                .flat_map(|r| r.points.iter().map(|p| p.0))
-                .fold(f64::INFINITY, f64::min);
-            series.insert(
-                0,
-                Series {
-                    label: format!("{} on the true front", rp.y_objective),
-                    points: s.true_front.iter().map(|p| (x, p[y])).collect(),
-                    kind: SeriesKind::Levels,
-                },
-            );
-        }
-        let figure = Figure {
-            title: format!("{}: {} reached vs ε ratio", sweep.name, rp.y_objective),
-            x_label: format!("ε_{} / ε_{}", rp.numerator, rp.denominator),
-            y_label: format!("{} return", rp.y_objective),
-            series,
-            log_x: true,
-        };
-        crate::report::plot::save(&figure, &s.dir.join("ratio"))?;
+            .flat_map(|r| r.points.iter().map(|p| p.0))
+            .fold(f64::INFINITY, f64::min);
+        series.insert(
+            0,
+            Series {
+                label: format!("{} on the true front", rp.y_objective),
+                points: s.true_front.iter().map(|p| (x, p[y])).collect(),
+                kind: SeriesKind::Levels,
+            },
+        );
     }
-    Ok(())
+    Ok(Figure {
+        title: format!("{name}: {} reached vs ε ratio", rp.y_objective),
+        x_label: format!("ε_{} / ε_{}", rp.numerator, rp.denominator),
+        y_label: format!("{} return", rp.y_objective),
+        series,
+        log_x: true,
+    })
 }
 
 /// The first two objectives' returns: the region the found front dominates above the

@@ -39,8 +39,8 @@ use tokio::sync::watch;
 use crate::core::algo::preferences::PreferenceGrid;
 use crate::core::nets::{Acting, ActionBounds, ActorPolicy, PolicySnapshot};
 use crate::core::random::StreamKey;
-use crate::core::replay::SnippetLayout;
 use crate::core::replay::adder::AdderStep;
+use crate::core::replay::{Snippet, SnippetLayout};
 use crate::core::spec::Space;
 use crate::env::error::EnvError;
 use crate::env::pool::{Assignment, ServerPool};
@@ -50,7 +50,7 @@ use crate::runtime::schedule::{ActorStep, Schedule, wait_for_population_learner}
 
 mod session;
 
-use session::{Conditioner, Live, Sessions, observed, restart, start};
+use session::{Conditioner, Live, Lost, Sessions, observed, restart, start};
 
 /// One member's part of an actor (a single run is a population of one).
 #[derive(Debug)]
@@ -166,6 +166,86 @@ struct MemberStep<'a> {
     step: &'a crate::env::StepResult,
 }
 
+/// Where in the run a step is: the actor, its act count, B and the snippet sizes.
+#[derive(Clone, Copy)]
+struct StepAt {
+    actor: usize,
+    acts: u64,
+    b: usize,
+    layout: SnippetLayout,
+}
+
+/// What every member's policy did at one step: the env's action for the whole
+/// session, and the replay's actions and behaviour log-probabilities, member after
+/// member (`[P B, D]` or `[P B]`, and `[P B]`).
+struct Acted {
+    env_action: HostTensor,
+    replay_actions: Vec<f32>,
+    log_probs: Vec<f32>,
+}
+
+impl Acted {
+    /// Member `p`'s rows of the replay's actions and log-probabilities.
+    fn member(&self, p: usize, b: usize, members: usize) -> MemberActs<'_> {
+        let width = self.replay_actions.len() / (b * members);
+        let rows = p * b..(p + 1) * b;
+        MemberActs {
+            replay_actions: &self.replay_actions[rows.start * width..rows.end * width],
+            log_probs: &self.log_probs[rows],
+        }
+    }
+}
+
+/// Every member's policy on its instances' observations, sampled from its stream at
+/// act `acts`.
+fn act_all(members: &[ActorMember], live: &Live, map: &ActionMap, at: StepAt) -> Acted {
+    let (b, o) = (at.b as i64, at.layout.obs_dim as i64);
+    let (mut actions, mut log_probs) = (Vec::new(), Vec::new());
+    for (m, obs) in members.iter().zip(&live.obs) {
+        let obs_t = Tensor::from_slice(obs).view([b, o]);
+        let out = m
+            .policy
+            .act(&obs_t, Acting::Sample(&mut m.sampling.at(at.acts)));
+        actions.push(out.actions);
+        log_probs.push(out.log_probs.to_kind(Kind::Float));
+    }
+    let log_probs = Vec::<f32>::try_from(&Tensor::cat(&log_probs, 0)).expect("f32 log-probs");
+    let (env_action, replay_actions) = map.apply(&Tensor::cat(&actions, 0), at.b * members.len());
+    Acted {
+        env_action,
+        replay_actions,
+        log_probs,
+    }
+}
+
+/// Records each member's part of `step` in its run; a member whose run has ended only
+/// keeps its instances' observations (the session still steps them).
+fn record_all(
+    members: &[ActorMember],
+    conds: &mut [Option<Conditioner>],
+    live: &mut Live,
+    step: &crate::env::StepResult,
+    acted: &Acted,
+    at: StepAt,
+) -> Result<(), EnvError> {
+    for (p, (m, cond)) in members.iter().zip(conds.iter_mut()).enumerate() {
+        let ms = split_step(step, p, at.b);
+        if m.schedule.stopping() {
+            live.obs[p] = observed(cond, ms.next_env, None);
+            continue;
+        }
+        record_member(m, cond, live, ms, acted.member(p, at.b, members.len()), at)?;
+    }
+    Ok(())
+}
+
+/// One member's rows of what the policies did (see [`Acted`]).
+#[derive(Clone, Copy)]
+struct MemberActs<'a> {
+    replay_actions: &'a [f32],
+    log_probs: &'a [f32],
+}
+
 /// Turns one member's part of a step into its snippets and episode log rows, and
 /// commits them to its run.
 fn record_member(
@@ -173,21 +253,67 @@ fn record_member(
     cond: &mut Option<Conditioner>,
     live: &mut Live,
     ms: MemberStep<'_>,
-    (replay_actions, log_probs): (&[f32], &[f32]),
-    (id, acts, b, layout): (usize, u64, usize, SnippetLayout),
+    acted: MemberActs<'_>,
+    at: StepAt,
 ) -> Result<(), EnvError> {
+    // The grid point each ended episode acted with, before new ones are drawn.
+    let ended_with: Vec<usize> = ms
+        .episodes
+        .iter()
+        .map(|e| cond.as_ref().map_or(0, |c| c.current[e.env_index]))
+        .collect();
+    let snippets = add_snippets(cond, live, &ms, acted, at);
+    let returns = ms.episodes.iter().map(|e| e.episode_return.clone());
+    let actor_step = ActorStep {
+        actor: at.actor,
+        acts: at.acts,
+        env_steps: at.b as u64,
+        snippets,
+        episode_returns: returns.collect(),
+    };
+    let wall_seconds = member.schedule.elapsed_seconds();
+    let log = |env_steps: u64| {
+        ms.episodes
+            .iter()
+            .zip(&ended_with)
+            .try_for_each(|(episode, &g)| {
+                member.files.episode(&EpisodeRecord {
+                    env_steps,
+                    actor: at.actor,
+                    episode: episode.clone(),
+                    wall_seconds,
+                    preference: cond
+                        .as_ref()
+                        .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
+                })
+            })
+    };
+    member
+        .schedule
+        .commit(actor_step, log)
+        .map_err(|e| EnvError::Process(e.to_string()))
+}
+
+/// Feeds each of the member's instances' transitions to its adder; an instance whose
+/// episode ended starts the next one (with a new preference, when conditioned). Its
+/// snippets, and the member's observations for the next act.
+fn add_snippets(
+    cond: &mut Option<Conditioner>,
+    live: &mut Live,
+    ms: &MemberStep<'_>,
+    acted: MemberActs<'_>,
+    at: StepAt,
+) -> Vec<Snippet> {
+    let StepAt {
+        acts, b, layout, ..
+    } = at;
     let (o, k) = (layout.obs_dim, layout.num_rewards);
     let offset = ms.p * b;
     let next = observed(cond, ms.next_env.clone(), None);
     let ended: Vec<usize> = ms.episodes.iter().map(|e| e.env_index).collect();
-    let finals = observed(cond, ms.finals, Some(&ended));
+    let finals = observed(cond, ms.finals.clone(), Some(&ended));
     let mut draws = cond.as_ref().map(|c| c.draws.at(2 * acts));
-    // The grid point each ended episode acted with, before new ones are drawn.
-    let ended_with: Vec<usize> = ended
-        .iter()
-        .map(|&i| cond.as_ref().map_or(0, |c| c.current[i]))
-        .collect();
-    let width = replay_actions.len() / b;
+    let width = acted.replay_actions.len() / b;
     let mut snippets = Vec::new();
     for i in 0..b {
         let g = offset + i;
@@ -197,12 +323,12 @@ fn record_member(
             _ => &next[i * o..(i + 1) * o],
         };
         let adder_step = AdderStep {
-            action: &replay_actions[i * width..(i + 1) * width],
+            action: &acted.replay_actions[i * width..(i + 1) * width],
             reward: &ms.step.reward[g * k..(g + 1) * k],
             next_observation: next_obs,
             terminated: ms.step.terminated[g],
             truncated: ms.step.truncated[g],
-            log_prob: log_probs[i],
+            log_prob: acted.log_probs[i],
         };
         snippets.extend(live.adders[g].add(adder_step));
         if ended_at.is_some() {
@@ -221,38 +347,10 @@ fn record_member(
         }
     }
     live.obs[ms.p] = match cond {
-        Some(_) => observed(cond, ms.next_env, None),
+        Some(_) => observed(cond, ms.next_env.clone(), None),
         None => next,
     };
-    let returns = ms.episodes.iter().map(|e| e.episode_return.clone());
-    let actor_step = ActorStep {
-        actor: id,
-        acts,
-        env_steps: b as u64,
-        snippets,
-        episode_returns: returns.collect(),
-    };
-    let wall_seconds = member.schedule.elapsed_seconds();
-    let log = |env_steps: u64| {
-        ms.episodes
-            .iter()
-            .zip(&ended_with)
-            .try_for_each(|(episode, &g)| {
-                member.files.episode(&EpisodeRecord {
-                    env_steps,
-                    actor: id,
-                    episode: episode.clone(),
-                    wall_seconds,
-                    preference: cond
-                        .as_ref()
-                        .map_or_else(Vec::new, |c| c.grid.conditioned_epsilon(g)),
-                })
-            })
-    };
-    member
-        .schedule
-        .commit(actor_step, log)
-        .map_err(|e| EnvError::Process(e.to_string()))
+    snippets
 }
 
 /// Each member's part of a step's ended episodes and final observations.
@@ -296,6 +394,82 @@ async fn catch_up(schedules: &[&Schedule], members: &mut [ActorMember]) -> Resul
     Ok(())
 }
 
+/// Each ε-conditioned member's preference state for its B instances.
+fn conditioners(members: &[ActorMember], b: usize) -> Vec<Option<Conditioner>> {
+    members
+        .iter()
+        .map(|m| {
+            m.preferences.clone().map(|(grid, draws)| Conditioner {
+                grid,
+                draws,
+                current: vec![0; b],
+            })
+        })
+        .collect()
+}
+
+/// The actor's first session, on its assigned server or, when that server went away
+/// between the pool's connect and this session, wherever `restart` finds one; `None`
+/// when the run ended while it looked.
+async fn first_session(
+    sessions: &Sessions<'_>,
+    on: &mut Assignment,
+    conds: &mut [Option<Conditioner>],
+    acts: u64,
+) -> Result<Option<Live>, EnvError> {
+    let began = Instant::now();
+    match start(sessions, &on.client, conds, acts).await {
+        Ok(live) => Ok(Some(live)),
+        Err(e) if e.lost_session() => {
+            let lost = Lost {
+                cause: &e,
+                since: began,
+            };
+            restart(sessions, on, lost, conds, acts).await
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// What one env call came to.
+enum Stepped {
+    /// The step's result.
+    Step(crate::env::StepResult),
+    /// The session was lost and made again (this act is not recorded).
+    Restarted,
+    /// The session was lost and the run ended while the actor looked for a server.
+    Ended,
+}
+
+/// Steps the session with `acted`'s actions; a lost session is made again in `live`.
+async fn step_session(
+    sessions: &Sessions<'_>,
+    on: &mut Assignment,
+    conds: &mut [Option<Conditioner>],
+    live: &mut Live,
+    acted: &Acted,
+    acts: u64,
+) -> Result<Stepped, EnvError> {
+    let called = Instant::now();
+    match live.env.step(&acted.env_action).await {
+        Ok(step) => Ok(Stepped::Step(step)),
+        Err(e) if e.lost_session() => {
+            let lost = Lost {
+                cause: &e,
+                since: called,
+            };
+            match restart(sessions, on, lost, conds, acts).await? {
+                Some(restarted) => {
+                    *live = restarted;
+                    Ok(Stepped::Restarted)
+                }
+                None => Ok(Stepped::Ended),
+            }
+        }
+        Err(e) => Err(e),
+    }
+}
+
 /// Run until every member's env-step budget is spent or its run stops.
 pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
     let ActorContext {
@@ -322,34 +496,15 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
         schedules: schedules.iter().map(Arc::as_ref).collect(),
         total_env_steps,
     };
-    let o = layout.obs_dim;
     // Off-policy, an actor steps its envs while the learner takes the steps that its
     // previous step allowed, and commits the new step once they are taken (module
     // docs); on-policy, each step acts with the policy of every step allowed so far.
     let pipelined = !layout.on_policy;
-    let mut conds: Vec<Option<Conditioner>> = members
-        .iter()
-        .map(|m| {
-            m.preferences.clone().map(|(grid, draws)| Conditioner {
-                grid,
-                draws,
-                current: vec![0; b],
-            })
-        })
-        .collect();
+    let mut conds = conditioners(&members, b);
     let mut on = server;
     let mut acts = first_act;
-    let began = Instant::now();
-    let mut live = match start(&sessions, &on.client, &mut conds, acts).await {
-        Ok(live) => live,
-        // The server went away between the pool's connect and this session.
-        Err(e) if e.lost_session() => {
-            match restart(&sessions, &mut on, (&e, began), &mut conds, acts).await? {
-                Some(live) => live,
-                None => return Ok(()),
-            }
-        }
-        Err(e) => return Err(e),
+    let Some(mut live) = first_session(&sessions, &mut on, &mut conds, acts).await? else {
+        return Ok(());
     };
     // Every way out of the loop, an error included, closes the session: a server
     // would otherwise hold it (and its simulators) until its lease runs out.
@@ -365,58 +520,26 @@ pub async fn run_actor(ctx: ActorContext) -> Result<(), EnvError> {
                 wait_for_population_learner(&sessions.schedules).await;
                 break;
             }
-            let (mut actions, mut log_probs) = (Vec::new(), Vec::new());
-            for (m, obs) in members.iter().zip(&live.obs) {
-                let obs_t = Tensor::from_slice(obs).view([b as i64, o as i64]);
-                let out = m
-                    .policy
-                    .act(&obs_t, Acting::Sample(&mut m.sampling.at(acts)));
-                actions.push(out.actions);
-                log_probs.push(out.log_probs.to_kind(Kind::Float));
-            }
+            let at = StepAt {
+                actor: id,
+                acts,
+                b,
+                layout,
+            };
+            let acted = act_all(&members, &live, &map, at);
             acts += 1;
-            let log_probs =
-                Vec::<f32>::try_from(&Tensor::cat(&log_probs, 0)).expect("f32 log-probs");
-            let (env_action, replay_actions) =
-                map.apply(&Tensor::cat(&actions, 0), b * members.len());
-            let called = Instant::now();
-            let step = match live.env.step(&env_action).await {
-                Ok(step) => step,
-                Err(e) if e.lost_session() => {
-                    match restart(&sessions, &mut on, (&e, called), &mut conds, acts).await? {
-                        Some(restarted) => {
-                            live = restarted;
-                            continue;
-                        }
-                        None => break,
-                    }
-                }
-                Err(e) => return Err(e),
+            let at = StepAt { acts, ..at };
+            let step = match step_session(&sessions, &mut on, &mut conds, &mut live, &acted, acts)
+                .await?
+            {
+                Stepped::Step(step) => step,
+                Stepped::Restarted => continue,
+                Stepped::Ended => break,
             };
             if pipelined {
                 catch_up(&sessions.schedules, &mut members).await?;
             }
-            let width = replay_actions.len() / (b * members.len());
-            for (p, (m, cond)) in members.iter().zip(conds.iter_mut()).enumerate() {
-                let ms = split_step(&step, p, b);
-                if m.schedule.stopping() {
-                    // Its run has ended: the session still steps its instances.
-                    live.obs[p] = observed(cond, ms.next_env, None);
-                    continue;
-                }
-                let rows = p * b..(p + 1) * b;
-                record_member(
-                    m,
-                    cond,
-                    &mut live,
-                    ms,
-                    (
-                        &replay_actions[rows.start * width..rows.end * width],
-                        &log_probs[rows],
-                    ),
-                    (id, acts, b, layout),
-                )?;
-            }
+            record_all(&members, &mut conds, &mut live, &step, &acted, at)?;
             if !pipelined {
                 catch_up(&sessions.schedules, &mut members).await?;
             }

@@ -149,13 +149,21 @@ pub(super) async fn start(
 /// session. A server that missed a deadline is tried last in the first round, so its
 /// actors move within one deadline when another server answers. `None`: the run
 /// ended meanwhile.
+/// Why a session is made again: the error that lost it, and since when it has been
+/// trying (how long it may keep trying is counted from then).
+pub(super) struct Lost<'a> {
+    pub cause: &'a EnvError,
+    pub since: Instant,
+}
+
 pub(super) async fn restart(
     ctx: &Sessions<'_>,
     on: &mut Assignment,
-    (cause, since): (&EnvError, Instant),
+    lost: Lost<'_>,
     conds: &mut [Option<Conditioner>],
     acts: u64,
 ) -> Result<Option<Live>, EnvError> {
+    let Lost { cause, since } = lost;
     tracing::warn!(actor = ctx.id, server = %on.address, error = %cause, "env session lost; reconnecting");
     let pool = ctx.servers;
     if cause.unreachable() {

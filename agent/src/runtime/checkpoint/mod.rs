@@ -121,6 +121,45 @@ pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError 
     }
 }
 
+/// Writes a directory as one step (module docs): `fill` writes its files into a
+/// temporary sibling, which is synced and renamed to `dir` once the old `dir` is moved
+/// aside, so a crash leaves whole checkpoints only.
+fn write_dir_atomically(
+    dir: &Path,
+    fill: impl FnOnce(&Path) -> Result<(), CheckpointError>,
+) -> Result<(), CheckpointError> {
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "checkpoint".into());
+    let parent = dir
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(io(parent))?;
+    let tmp = parent.join(format!("{name}.tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+    }
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    fill(&tmp)?;
+    for entry in std::fs::read_dir(&tmp).map_err(io(&tmp))? {
+        sync_path(&entry.map_err(io(&tmp))?.path())?;
+    }
+    sync_path(&tmp)?;
+    let old = parent.join(format!("{name}.old-{}", std::process::id()));
+    let had_old = dir.exists();
+    if had_old {
+        std::fs::rename(dir, &old).map_err(io(dir))?;
+    }
+    std::fs::rename(&tmp, dir).map_err(io(dir))?;
+    sync_path(parent)?;
+    if had_old {
+        std::fs::remove_dir_all(&old).map_err(io(&old))?;
+    }
+    Ok(())
+}
+
 /// Flushes `path` (a file, or a directory's entries) to the disk. A rename is atomic
 /// against a crash of the process, but only a synced file and a synced directory
 /// survive the machine's crash or power loss (a preempted node) in their renamed state.
@@ -224,41 +263,60 @@ impl Learner {
         member: usize,
         extra: &[ExtraFile<'_>],
     ) -> Result<(), CheckpointError> {
-        let view = |t: Tensor| self.members.view(&t, member as i64, 1);
+        write_dir_atomically(dir, |tmp| {
+            Tensor::write_safetensors(&self.member_params(member), tmp.join("params.safetensors"))?;
+            let moments = self.member_moments(member);
+            Tensor::write_safetensors(&moments, tmp.join("optimizer.safetensors"))?;
+            let json_path = tmp.join("state.json");
+            let text =
+                serde_json::to_string_pretty(&self.member_state(member)).map_err(|source| {
+                    CheckpointError::Json {
+                        path: json_path.clone(),
+                        source,
+                    }
+                })?;
+            std::fs::write(&json_path, text).map_err(io(&json_path))?;
+            for file in extra {
+                let path = tmp.join(file.name);
+                std::fs::write(&path, file.contents).map_err(io(&path))?;
+            }
+            Ok(())
+        })
+    }
+
+    /// Member `member`'s slice of a `[P, ...]` tensor.
+    fn member_view(&self, t: &Tensor, member: usize) -> Tensor {
+        self.members.view(t, member as i64, 1)
+    }
+
+    /// Member `member`'s networks, targets and duals, by checkpoint name.
+    fn member_params(&self, member: usize) -> Vec<(String, Tensor)> {
         let prefixed = |vs: &nn::VarStore, prefix: &str| -> Vec<(String, Tensor)> {
             prefixed(vs, prefix)
                 .into_iter()
-                .map(|(k, v)| (k, view(v)))
+                .map(|(k, v)| (k, self.member_view(&v, member)))
                 .collect()
         };
-        let name = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "checkpoint".into());
-        let parent = dir
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        std::fs::create_dir_all(parent).map_err(io(parent))?;
-        let tmp = parent.join(format!("{name}.tmp-{}", std::process::id()));
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
-        }
-        std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-
         let mut params = prefixed(&self.policy_vs, "policy");
         params.extend(prefixed(&self.target_policy_vs, "target_policy"));
         params.extend(prefixed(&self.critic_vs, "critic"));
         if let Critics::Q { target_vs, .. } = &self.critics {
             params.extend(prefixed(target_vs, "target_critic"));
         }
+        let duals = &self.duals;
         params.push((
             "duals/temperature".into(),
-            view(self.duals.temperature_param.detach()),
+            self.member_view(&duals.temperature_param.detach(), member),
         ));
-        params.push(("duals/alpha".into(), view(self.duals.alpha_param.detach())));
-        Tensor::write_safetensors(&params, tmp.join("params.safetensors"))?;
+        params.push((
+            "duals/alpha".into(),
+            self.member_view(&duals.alpha_param.detach(), member),
+        ));
+        params
+    }
 
+    /// Member `member`'s Adam moments of every optimizer, by checkpoint name.
+    fn member_moments(&self, member: usize) -> Vec<(String, Tensor)> {
         let mut moments = Vec::new();
         for (prefix, opt) in [
             ("policy", &self.policy_opt),
@@ -268,22 +326,16 @@ impl Learner {
             moments.extend(
                 opt.state_tensors()
                     .into_iter()
-                    .map(|(k, v)| (format!("{prefix}/{k}"), view(v))),
+                    .map(|(k, v)| (format!("{prefix}/{k}"), self.member_view(&v, member))),
             );
         }
-        Tensor::write_safetensors(&moments, tmp.join("optimizer.safetensors"))?;
+        moments
+    }
 
-        let temperature = self.member_duals(member).0;
-        let alpha = {
-            let a = self.duals.alpha();
-            to_vec(
-                &self
-                    .members
-                    .view(&a, member as i64, 1)
-                    .mean_dim(-1, false, Kind::Float),
-            )
-        };
-        let state = CheckpointState {
+    /// Member `member`'s `state.json`: step counts, duals, config and dimensions.
+    fn member_state(&self, member: usize) -> CheckpointState {
+        let alpha = self.member_view(&self.duals.alpha(), member);
+        CheckpointState {
             format_version: FORMAT_VERSION,
             step: self.step,
             adam_steps: [
@@ -291,39 +343,11 @@ impl Learner {
                 self.critic_opt.step_count(),
                 self.duals.optimizer.step_count(),
             ],
-            temperature,
-            alpha,
+            temperature: self.member_duals(member).0,
+            alpha: to_vec(&alpha.mean_dim(-1, false, Kind::Float)),
             config: self.member_cfgs[member].clone(),
             dims: self.dims.clone(),
-        };
-        let json_path = tmp.join("state.json");
-        let text =
-            serde_json::to_string_pretty(&state).map_err(|source| CheckpointError::Json {
-                path: json_path.clone(),
-                source,
-            })?;
-        std::fs::write(&json_path, text).map_err(io(&json_path))?;
-        for file in extra {
-            let path = tmp.join(file.name);
-            std::fs::write(&path, file.contents).map_err(io(&path))?;
         }
-
-        for entry in std::fs::read_dir(&tmp).map_err(io(&tmp))? {
-            sync_path(&entry.map_err(io(&tmp))?.path())?;
-        }
-        sync_path(&tmp)?;
-
-        let old = parent.join(format!("{name}.old-{}", std::process::id()));
-        let had_old = dir.exists();
-        if had_old {
-            std::fs::rename(dir, &old).map_err(io(dir))?;
-        }
-        std::fs::rename(&tmp, dir).map_err(io(dir))?;
-        sync_path(parent)?;
-        if had_old {
-            std::fs::remove_dir_all(&old).map_err(io(&old))?;
-        }
-        Ok(())
     }
 
     /// Rebuilds a learner from `dir` on `device` with the stored config and dimensions.

@@ -210,15 +210,16 @@ impl TrainConfig {
         Ok(cfg)
     }
 
-    /// Check the run and learner fields.
+    /// Check the env, front, run and learner fields.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let invalid = |field: &str, requirement: &str, got: String| {
-            Err(ConfigError::Invalid {
-                field: field.into(),
-                requirement: requirement.into(),
-                got,
-            })
-        };
+        self.validate_env()?;
+        self.validate_front()?;
+        self.validate_run()?;
+        self.learner.validate()
+    }
+
+    /// The `[env]` fields: id, sizes, connection, deadlines and server addresses.
+    fn validate_env(&self) -> Result<(), ConfigError> {
         if self.env.id.is_empty() {
             return invalid("env.id", "a registered env id", "\"\"".into());
         }
@@ -250,23 +251,28 @@ impl TrainConfig {
                 self.env.workers.to_string(),
             );
         }
+        Ok(())
+    }
+
+    /// A `[front]` section exactly when the learner is ε-conditioned.
+    fn validate_front(&self) -> Result<(), ConfigError> {
         match (&self.learner.conditioning, &self.front) {
-            (Some(_), None) => {
-                return invalid(
-                    "front",
-                    "a [front] section with reference_point when learner.conditioning is set (the run ends by measuring its front)",
-                    "no [front]".into(),
-                );
-            }
-            (None, Some(_)) => {
-                return invalid(
-                    "front",
-                    "absent unless learner.conditioning is set (a fixed-ε run has one point, not a front)",
-                    "a [front] section".into(),
-                );
-            }
-            _ => {}
+            (Some(_), None) => invalid(
+                "front",
+                "a [front] section with reference_point when learner.conditioning is set (the run ends by measuring its front)",
+                "no [front]".into(),
+            ),
+            (None, Some(_)) => invalid(
+                "front",
+                "absent unless learner.conditioning is set (a fixed-ε run has one point, not a front)",
+                "a [front] section".into(),
+            ),
+            _ => Ok(()),
         }
+    }
+
+    /// The `[run]` fields: rates, periods and the solve threshold.
+    fn validate_run(&self) -> Result<(), ConfigError> {
         let r = &self.run;
         if !(r.learner_steps_per_env_step.is_finite() && r.learner_steps_per_env_step > 0.0) {
             return invalid(
@@ -301,13 +307,22 @@ impl TrainConfig {
         if r.min_replay_transitions == 0 {
             return invalid("run.min_replay_transitions", ">= 1", "0".into());
         }
-        self.learner.validate()
+        Ok(())
     }
 
     /// Short algorithm name for run directories and tables.
     pub fn algo_name(&self) -> &'static str {
         self.learner.algorithm.short_name()
     }
+}
+
+/// A validation error naming `field`, what it must be, and what it was.
+fn invalid(field: &str, requirement: &str, got: String) -> Result<(), ConfigError> {
+    Err(ConfigError::Invalid {
+        field: field.into(),
+        requirement: requirement.into(),
+        got,
+    })
 }
 
 #[cfg(test)]

@@ -3,15 +3,12 @@
 //! interrupted run leaves: evaluation scalars, `summary.json` and the curves.
 
 use std::path::Path;
-use std::sync::Arc;
-use std::time::Instant;
 
 use tch::Device;
 
 use super::curves::plot_curves;
-use super::{MemberRun, TrainError, TrainOptions, TrainSummary, front, io};
-use crate::core::algo::objectives::LearnerDims;
-use crate::core::algo::preferences::PreferenceGrid;
+use super::evals::finish_evaluations;
+use super::{MemberRun, Population, TrainError, TrainOptions, TrainSummary, front, io};
 use crate::core::nets::ActorPolicy;
 use crate::core::nets::PolicySnapshot;
 use crate::env::EpisodeSummary;
@@ -91,78 +88,99 @@ pub(super) fn write_reports(summary: &TrainSummary, files: &RunFiles) -> Result<
     Ok(())
 }
 
-/// A member's final evaluation (its own policy), conditioned front and reports.
-pub(super) async fn finish_member(
-    run: &MemberRun,
-    snapshot: &PolicySnapshot,
-    servers: &Arc<ServerPool>,
-    dims: &LearnerDims,
-    grid: Option<&PreferenceGrid>,
-    options: &TrainOptions,
-    (objectives, discount, device, started): (&[String], f64, Device, Instant),
-) -> Result<TrainSummary, TrainError> {
-    let cfg = &run.cfg;
-    let counters = run.schedule.counters();
-    let policy = || {
-        let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
-        policy
-            .load(snapshot)
-            .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
-        Ok(match grid {
-            Some(grid) => policy.at_preference(&grid.default_features()),
-            None => policy,
-        })
-    };
-    let FinalEvaluation {
-        episodes: eval,
-        video: eval_video,
-    } = final_evaluation(
-        cfg,
-        servers,
-        &policy,
-        counters.interrupted.is_some(),
-        options.video.as_ref(),
-        &run.run_dir,
-    )
-    .await?;
-    let front = match grid {
-        Some(grid) if counters.interrupted.is_none() => Some(
-            front::conditioned_front(
-                cfg,
-                servers,
-                grid,
-                dims,
-                snapshot,
-                objectives.to_vec(),
-                &run.run_dir,
-            )
-            .await?,
-        ),
-        _ => None,
-    };
-    let stats = run.latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
-    let summary = TrainSummary {
-        run_dir: run.run_dir.clone(),
-        objectives: objectives.to_vec(),
-        env_steps: counters.env_steps,
-        learner_steps: counters.learner_steps,
-        episodes: counters.episodes,
-        wall_seconds: started.elapsed().as_secs_f64(),
-        recent_train_return: counters.recent_mean_return(),
-        temperature: stats.map(|s| s.temperature).unwrap_or_default(),
-        eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
-        eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
-        eval_discount: discount,
-        eval_episodes: eval,
-        learner_device: format!("{device:?}"),
-        solve_threshold: cfg.run.solve_threshold.clone(),
-        solved: run.schedule.solved(),
-        interrupted: counters.interrupted.clone(),
-        eval_video,
-        actor_servers: servers.actor_servers(),
-        env_faults: servers.faults(),
-        front,
-    };
-    write_reports(&summary, &run.files)?;
-    Ok(summary)
+impl Population {
+    /// Waits for the members' periodic evaluations, then evaluates each member's final
+    /// policy and writes its reports; summaries in member order.
+    pub(super) async fn finish(
+        &mut self,
+        policies: Vec<PolicySnapshot>,
+        options: &TrainOptions,
+    ) -> Result<Vec<TrainSummary>, TrainError> {
+        for run in &mut self.runs {
+            let interrupted = run.schedule.counters().interrupted.is_some();
+            let task = run.evaluations.take();
+            finish_evaluations(task, &run.schedule, interrupted, &run.run_dir).await?;
+        }
+        let mut summaries = Vec::with_capacity(self.runs.len());
+        for (run, snapshot) in self.runs.iter().zip(policies) {
+            summaries.push(self.finish_member(run, &snapshot, options).await?);
+        }
+        Ok(summaries)
+    }
+
+    /// A member's final evaluation (its own policy), conditioned front and reports.
+    async fn finish_member(
+        &self,
+        run: &MemberRun,
+        snapshot: &PolicySnapshot,
+        options: &TrainOptions,
+    ) -> Result<TrainSummary, TrainError> {
+        let cfg = &run.cfg;
+        let counters = run.schedule.counters();
+        let servers = &self.servers;
+        let dims = &self.dims;
+        let grid = self.grid.as_deref();
+        let policy = || {
+            let mut policy = ActorPolicy::new(&cfg.learner.network, dims, Device::Cpu);
+            policy
+                .load(snapshot)
+                .map_err(|e| EnvError::Process(format!("policy snapshot: {e}")))?;
+            Ok(match grid {
+                Some(grid) => policy.at_preference(&grid.default_features()),
+                None => policy,
+            })
+        };
+        let FinalEvaluation {
+            episodes: eval,
+            video: eval_video,
+        } = final_evaluation(
+            cfg,
+            servers,
+            &policy,
+            counters.interrupted.is_some(),
+            options.video.as_ref(),
+            &run.run_dir,
+        )
+        .await?;
+        let front = match grid {
+            Some(grid) if counters.interrupted.is_none() => Some(
+                front::conditioned_front(
+                    cfg,
+                    servers,
+                    grid,
+                    dims,
+                    snapshot,
+                    self.objectives.clone(),
+                    &run.run_dir,
+                )
+                .await?,
+            ),
+            _ => None,
+        };
+        let stats = run.latest.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let summary = TrainSummary {
+            run_dir: run.run_dir.clone(),
+            objectives: self.objectives.clone(),
+            env_steps: counters.env_steps,
+            learner_steps: counters.learner_steps,
+            episodes: counters.episodes,
+            wall_seconds: self.started.elapsed().as_secs_f64(),
+            recent_train_return: counters.recent_mean_return(),
+            temperature: stats.map(|s| s.temperature).unwrap_or_default(),
+            eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
+            eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
+            eval_discount: self.discount,
+            eval_episodes: eval,
+            learner_device: format!("{:?}", self.device),
+            solve_threshold: cfg.run.solve_threshold.clone(),
+            solved: run.schedule.solved(),
+            interrupted: counters.interrupted.clone(),
+            eval_video,
+            actor_servers: servers.actor_servers(),
+            env_faults: servers.faults(),
+            front,
+        };
+        write_reports(&summary, &run.files)?;
+        Ok(summary)
+    }
 }

@@ -12,23 +12,26 @@
 //! learner of P members, actors with one env session for all of them, and a folder
 //! per run as `train` writes it; `train` is a population of one.
 //!
-//! `setup` opens the runs and builds their schedules, `actors` starts the actors,
-//! `progress` draws the bar and takes the signals, `finish` evaluates and writes the
-//! reports; this module starts the learner and waits for them all.
+//! `train_population` is four steps around one [`Population`] value: `open` (the
+//! servers, the env's spec and each member's run; `setup` makes the run folders and
+//! schedules), `start` and `wait` (`launch`: the learner thread, `actors`, periodic
+//! `videos`, `progress`), and `finish` (final evaluations, fronts, reports).
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use serde::Serialize;
+use tch::Device;
 use tokio::sync::watch;
+use tokio::task::JoinHandle;
 
 use crate::core::algo::LearnerStats;
-use crate::core::algo::objectives::{LearnerDims, check_declared};
+use crate::core::algo::objectives::LearnerDims;
 use crate::core::algo::preferences::PreferenceGrid;
-use crate::core::device::{choose_device, configure_threads};
 use crate::core::learner_config::ConfigError;
 use crate::core::nets::PolicySnapshot;
+use crate::core::replay::SnippetLayout;
 use crate::env::EpisodeSummary;
 use crate::env::error::EnvError;
 use crate::env::pool::{ActorServers, EnvFaults, ServerPool};
@@ -36,32 +39,24 @@ use crate::report::front::FrontSummary;
 use crate::report::metrics::RunFiles;
 use crate::report::plot::PlotError;
 use crate::report::video::{VideoPlan, VideoReport};
-use crate::runtime::env_setup::probe_spec;
-use crate::runtime::learner::{
-    LearnerContext, LearnerDone, LearnerLoopError, MemberLoop, run_learner,
-};
-use crate::runtime::resume::Checkpointer;
+use crate::runtime::learner::LearnerLoopError;
 use crate::runtime::run_config::TrainConfig;
 use crate::runtime::schedule::Schedule;
 use crate::runtime::solve::SolveRecord;
-use videos::{PeriodicContext, record_periodically};
 
 mod actors;
 mod curves;
 mod evals;
 mod finish;
 mod front;
+mod launch;
+mod open;
 mod progress;
 mod setup;
 mod videos;
 
-use actors::{ActorPlan, spawn_actors};
-use evals::{EvalPlan, finish_evaluations, start_evaluations};
-use finish::finish_member;
-use progress::{progress_bar, spawn_ticker};
-use setup::{
-    Opened, OpenedRun, check_population_run, open_population, schedule_for, snippet_layout,
-};
+use open::Opening;
+use setup::check_population_run;
 
 /// Errors of a training run.
 #[derive(Debug, thiserror::Error)]
@@ -194,6 +189,32 @@ struct MemberRun {
     params: watch::Receiver<Arc<PolicySnapshot>>,
     latest: Arc<Mutex<Option<LearnerStats>>>,
     first_acts: Vec<u64>,
+    /// The periodic evaluations' task (`run.eval_period`), started before any actor
+    /// commits so that no evaluation point is missed.
+    evaluations: Option<JoinHandle<()>>,
+}
+
+/// A population run from its opening to its summaries: what its members share (the
+/// servers, the env's objectives, the learner's dimensions, device and preference
+/// grid) and each member's run. `setup` opens it, `launch` starts and waits for its
+/// actors and learner, `finish` evaluates and reports.
+struct Population {
+    /// The first member's config: the env, actors, budget and periods all members share.
+    cfg: TrainConfig,
+    servers: Arc<ServerPool>,
+    /// Objective names in reward order.
+    objectives: Vec<String>,
+    /// The env's discount, for discounted evaluation returns.
+    discount: f64,
+    dims: LearnerDims,
+    device: Device,
+    /// An ε-conditioned run's preference grid.
+    grid: Option<Arc<PreferenceGrid>>,
+    /// Snippet sizes of the replays.
+    layout: SnippetLayout,
+    /// When this invocation started (the summaries' wall time).
+    started: Instant,
+    runs: Vec<MemberRun>,
 }
 
 /// Train the runs `cfgs` as one population (docs/design.md, "Populations"): one learner
@@ -207,215 +228,14 @@ pub async fn train_population(
     addresses: &[String],
     options: TrainOptions,
 ) -> Result<Vec<TrainSummary>, TrainError> {
-    let started = Instant::now();
     check_population_run(&cfgs, &options)?;
-    let cfg = cfgs[0].clone();
-    configure_threads(cfg.learner.num_threads);
-    let servers = Arc::new(
-        ServerPool::connect_with(addresses, &cfg.env.connection, cfg.env.deadlines).await?,
-    );
-    let probe = &cfg;
-    let spec = servers
-        .on_live("spec probe", |client| async move {
-            probe_spec(&client, probe).await
-        })
-        .await?;
-    let dims =
-        LearnerDims::from_spec(&spec)?.with_preference_features(cfg.learner.preference_features());
-    for c in &cfgs {
-        check_declared(&c.learner, &spec.objectives)?;
-    }
-    let objectives: Vec<String> = spec.objectives.iter().map(|o| o.name.clone()).collect();
-
-    let device = choose_device(&cfg.learner, &dims, cfgs.len())?;
-    let Opened {
-        runs: opened,
+    let Opening {
+        mut population,
         learner,
-    } = open_population(&cfgs, options.resume.as_deref(), &dims, device)?;
-    let grid = learner.preference_grid().cloned().map(Arc::new);
-    let conditioned: Vec<String> = grid.as_ref().map_or_else(Vec::new, |g| {
-        g.conditioned_names()
-            .into_iter()
-            .map(String::from)
-            .collect()
-    });
-    let layout = snippet_layout(&cfg, &dims, objectives.len());
-    let mut runs = Vec::with_capacity(cfgs.len());
-    let mut loops = Vec::with_capacity(cfgs.len());
-    let mut evaluations = Vec::with_capacity(cfgs.len());
-    for (p, (member_cfg, opened)) in cfgs.iter().zip(opened).enumerate() {
-        let OpenedRun {
-            run_dir,
-            counters,
-            resumed,
-        } = opened;
-        let files =
-            Arc::new(RunFiles::open(&run_dir, &objectives, &conditioned).map_err(io(&run_dir))?);
-        let first_acts: Vec<u64> = counters.actors.iter().map(|a| a.acts).collect();
-        let schedule = Arc::new(schedule_for(
-            member_cfg,
-            layout,
-            &objectives,
-            counters,
-            &run_dir,
-            resumed.as_ref(),
-        )?);
-        let segments_end = resumed
-            .as_ref()
-            .and_then(|r| r.replay.as_ref())
-            .map_or(0, |r| r.inserted);
-        let (params_tx, params_rx) = watch::channel(Arc::new(learner.member_policy_snapshot(p)));
-        let latest = Arc::new(Mutex::new(None));
-        // Before any actor commits, so that no evaluation point is missed.
-        let plan = EvalPlan {
-            cfg: member_cfg.clone(),
-            dims: dims.clone(),
-            grid: grid.clone(),
-            servers: servers.clone(),
-            files: files.clone(),
-        };
-        evaluations.push(start_evaluations(plan, &schedule, params_rx.clone()));
-        loops.push(MemberLoop {
-            schedule: schedule.clone(),
-            params: params_tx,
-            files: files.clone(),
-            latest: latest.clone(),
-            checkpointer: Checkpointer::new(
-                files.clone(),
-                member_cfg.run.checkpoint_replay,
-                segments_end,
-            )
-            .for_member(p),
-        });
-        runs.push(MemberRun {
-            cfg: member_cfg.clone(),
-            run_dir,
-            files,
-            schedule,
-            params: params_rx,
-            latest,
-            first_acts,
-        });
-    }
-
-    let learner_thread = {
-        let ctx = LearnerContext {
-            learner,
-            members: loops,
-            publish_period: cfg.run.publish_period,
-            checkpoint_period: cfg.run.checkpoint_period,
-            log_period: cfg.run.log_period,
-        };
-        std::thread::Builder::new()
-            .name("learner".into())
-            .spawn(move || run_learner(ctx))
-            .map_err(io(&runs[0].run_dir))?
-    };
-    let stop_all = {
-        let schedules: Vec<Arc<Schedule>> = runs.iter().map(|r| r.schedule.clone()).collect();
-        move |reason: Option<String>| {
-            for s in &schedules {
-                s.stop(reason.clone());
-            }
-        }
-    };
-
-    let actors = spawn_actors(
-        &ActorPlan {
-            cfg: &cfg,
-            runs: &runs,
-            dims: &dims,
-            servers: &servers,
-            grid: grid.as_ref(),
-            layout,
-        },
-        &stop_all,
-    )?;
-
-    // Periodic videos follow a single run's policy.
-    let videos = options
-        .video
-        .as_ref()
-        .filter(|_| runs.len() == 1)
-        .and_then(|plan| {
-            let run = &runs[0];
-            let ctx = PeriodicContext {
-                client: servers.first().client,
-                cfg: cfg.clone(),
-                dims: dims.clone(),
-                preference: grid.as_deref().map(PreferenceGrid::default_features),
-                params: run.params.clone(),
-                schedule: run.schedule.clone(),
-                dir: run.run_dir.join("videos"),
-            };
-            let every = plan.every?;
-            Some(tokio::spawn(record_periodically(
-                ctx,
-                every,
-                plan.options.clone(),
-            )))
-        });
-
-    let mut bars = Vec::new();
-    let mut tickers = Vec::new();
-    for run in &runs {
-        let bar = progress_bar(options.progress && runs.len() == 1, &cfg, &run.schedule);
-        tickers.push(spawn_ticker(
-            run.schedule.clone(),
-            run.latest.clone(),
-            bar.clone(),
-            objectives.clone(),
-        ));
-        bars.push(bar);
-    }
-
-    for actor in actors {
-        // The task itself catches panics; a join error is a cancelled runtime.
-        if let Err(e) = actor.await {
-            stop_all(Some(format!("an actor task ended abnormally: {e}")));
-        }
-    }
-    stop_all(None);
-    for ticker in tickers {
-        ticker.abort();
-    }
-    if let Some(videos) = videos {
-        videos.abort(); // a video in progress is cut short (its file may be incomplete)
-    }
-    let done = tokio::task::spawn_blocking(move || learner_thread.join())
-        .await
-        .map_err(|e| TrainError::Stopped(e.to_string()))?
-        .map_err(|_| TrainError::Stopped("the learner thread panicked".into()))?;
-    for bar in bars {
-        bar.finish_and_clear();
-    }
-    if let Some(error) = runs.iter().find_map(|r| r.schedule.counters().error) {
-        // The learner wrote a final checkpoint of every member before returning.
-        return Err(TrainError::Stopped(error));
-    }
-    let LearnerDone { learner, policies } = done?;
-    drop(learner);
-    for (run, task) in runs.iter().zip(evaluations) {
-        let interrupted = run.schedule.counters().interrupted.is_some();
-        finish_evaluations(task, &run.schedule, interrupted, &run.run_dir).await?;
-    }
-
-    let mut summaries = Vec::with_capacity(runs.len());
-    for (run, snapshot) in runs.iter().zip(policies) {
-        summaries.push(
-            finish_member(
-                run,
-                &snapshot,
-                &servers,
-                &dims,
-                grid.as_deref(),
-                &options,
-                (&objectives, spec.discount, device, started),
-            )
-            .await?,
-        );
-    }
-    Ok(summaries)
+    } = Population::open(cfgs, addresses, &options).await?;
+    let running = population.start(learner, &options)?;
+    let policies = population.wait(running).await?;
+    population.finish(policies, &options).await
 }
 
 /// The text of a caught panic (`panic!` with a message gives a `&str` or a `String`).
