@@ -225,6 +225,24 @@ class ForceObjectTask(ShadowHandTask):
     def object_force(self) -> float:
         return float(self.data.sensordata[self._obj_touch_adr])
 
+    @staticmethod
+    def _add_touch_sensor(spec: mujoco.MjSpec, body: mujoco.MjsBody, half_size: tuple[float, ...]) -> None:
+        """The object's `obj_touch` sensor: a MuJoCo touch sensor on an invisible box site
+        2 mm larger than the object's box (half sizes `half_size`), so that it sees every
+        contact on the object's faces."""
+        body.add_site(
+            name="obj_touch_site",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[h + 0.002 for h in half_size],
+            rgba=[0, 0, 0, 0],
+        )
+        spec.add_sensor(
+            name="obj_touch",
+            type=mujoco.mjtSensor.mjSENS_TOUCH,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            objname="obj_touch_site",
+        )
+
     def _after_reset(self) -> None:
         self._prev_force = self.object_force()
         self._impact = 0.0

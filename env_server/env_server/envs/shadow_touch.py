@@ -47,18 +47,7 @@ class ShadowTouch(ForceObjectTask):
     def _edit(self, spec: mujoco.MjSpec) -> None:
         body = spec.worldbody.add_body(name="block", pos=list(BLOCK_POS))  # no joint: static
         body.add_geom(name="block", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(BLOCK_HALF), rgba=[0.2, 0.4, 0.8, 1])
-        body.add_site(
-            name="obj_touch_site",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=[h + 0.002 for h in BLOCK_HALF],
-            rgba=[0, 0, 0, 0],
-        )
-        spec.add_sensor(
-            name="obj_touch",
-            type=mujoco.mjtSensor.mjSENS_TOUCH,
-            objtype=mujoco.mjtObj.mjOBJ_SITE,
-            objname="obj_touch_site",
-        )
+        self._add_touch_sensor(spec, body, BLOCK_HALF)
 
     def _success(self) -> bool:
         return self._prev_force > TOUCH_SUCCESS_N

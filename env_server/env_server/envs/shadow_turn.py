@@ -72,18 +72,7 @@ class ShadowTurn(ForceObjectTask):
         body.add_geom(
             name="dial", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(DIAL_HALF), mass=0.02, rgba=[0.8, 0.4, 0.2, 1]
         )
-        body.add_site(
-            name="obj_touch_site",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=[DIAL_HALF[0] + 0.002, DIAL_HALF[1] + 0.002, DIAL_HALF[2] + 0.002],
-            rgba=[0, 0, 0, 0],
-        )
-        spec.add_sensor(
-            name="obj_touch",
-            type=mujoco.mjtSensor.mjSENS_TOUCH,
-            objtype=mujoco.mjtObj.mjOBJ_SITE,
-            objname="obj_touch_site",
-        )
+        self._add_touch_sensor(spec, body, DIAL_HALF)
         spec.add_sensor(
             name="dial_angle", type=mujoco.mjtSensor.mjSENS_JOINTPOS, objtype=mujoco.mjtObj.mjOBJ_JOINT, objname="dial"
         )
