@@ -1,4 +1,4 @@
-"""`python -m env_server.ray`: env servers as Ray actors, their address file, and their restarts.
+"""`python -m env_server.tools.ray`: env servers as Ray actors, their address file, and their restarts.
 
 The launcher runs as a real subprocess, against a local Ray it starts itself or against a
 two-node cluster this module makes with Ray's own test utility (`ray.cluster_utils.Cluster`,
@@ -32,8 +32,8 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from env_server.client import RemoteEnv  # noqa: E402
-from env_server.ray import sweep  # noqa: E402
-from env_server.ray.launcher import parse, write_address_file  # noqa: E402
+from env_server.tools.ray import sweep  # noqa: E402
+from env_server.tools.ray.launcher import parse, write_address_file  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -72,11 +72,11 @@ def wait_for(what: str, predicate: Callable[[], bool], timeout: float) -> float:
 
 
 class Launcher:
-    """`python -m env_server.ray` as a subprocess, its stderr collected line by line."""
+    """`python -m env_server.tools.ray` as a subprocess, its stderr collected line by line."""
 
     def __init__(self, *args: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "env_server.ray", *args],
+            [sys.executable, "-m", "env_server.tools.ray", *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -212,7 +212,7 @@ def test_the_address_file_is_replaced_whole(tmp_path):
     path = str(tmp_path / "servers.txt")
     write_address_file(path, ["127.0.0.1:1", "127.0.0.1:2"], 3)
     assert read_addresses(path) == ["127.0.0.1:1", "127.0.0.1:2"]
-    assert open(path).readline() == "# env servers from python -m env_server.ray: 2 of 3 up\n"
+    assert open(path).readline() == "# env servers from python -m env_server.tools.ray: 2 of 3 up\n"
     write_address_file(path, [], 3)
     assert read_addresses(path) == []
     assert os.listdir(tmp_path) == ["servers.txt"]  # no temporary file left behind

@@ -1,4 +1,4 @@
-"""`python -m env_server.ray --num-servers N [options] [-- COMMAND ...]`: env servers on a Ray cluster.
+"""`python -m env_server.tools.ray --num-servers N [options] [-- COMMAND ...]`: env servers on a Ray cluster.
 
 Starts N env servers as Ray actors spread over the cluster's nodes and restarted when they
 fail, writes their addresses to an address file (one `host:port` per line, only the servers
@@ -27,7 +27,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from env_server.ray import sweep
+from env_server.tools.ray import sweep
 
 NAMESPACE = "env_server"
 """The Ray namespace of the server actors (named NAME-0 .. NAME-(N-1), --name)."""
@@ -47,7 +47,7 @@ class LaunchError(Exception):
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m env_server.ray",
+        prog="python -m env_server.tools.ray",
         description=__doc__.split("\n\n")[1],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         usage="%(prog)s --num-servers N [options] [-- COMMAND ...]",
@@ -188,7 +188,7 @@ def write_address_file(path: str, addresses: list[str], total: int) -> None:
     fd, tmp = tempfile.mkstemp(prefix=".env-servers-", dir=directory)
     try:
         with os.fdopen(fd, "w") as f:
-            f.write(f"# env servers from python -m env_server.ray: {len(addresses)} of {total} up\n")
+            f.write(f"# env servers from python -m env_server.tools.ray: {len(addresses)} of {total} up\n")
             f.writelines(f"{a}\n" for a in addresses)
         os.replace(tmp, path)
     except BaseException:
@@ -197,7 +197,7 @@ def write_address_file(path: str, addresses: list[str], total: int) -> None:
 
 
 def _log(message: str) -> None:
-    print(f"env_server.ray: {message}", file=sys.stderr, flush=True)
+    print(f"env_server.tools.ray: {message}", file=sys.stderr, flush=True)
 
 
 @dataclass
@@ -362,7 +362,7 @@ def _start_ray(opts: Options) -> Any:
 
 
 def _start_actors(ray: Any, opts: Options) -> list[Any]:
-    from env_server.ray.actor import ServerActor
+    from env_server.tools.ray.actor import ServerActor
 
     remote = ray.remote(ServerActor)
     actors = []
