@@ -13,7 +13,7 @@ from typing import Any
 
 import gymnasium
 
-from env_server import spaces
+from env_server import shared
 from env_server.errors import ConstructorError, Internal, InvalidArgument, quote
 from env_server.instances import InstanceFailure, Instances, LocalInstances, TaskInfo, build_tasks
 from env_server.registry import EnvEntry, construct
@@ -74,8 +74,8 @@ def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:
     if not names or len(set(names)) != len(names):
         raise Internal(f"env '{env_id}': objectives must be non-empty with unique names, got {names}")
     try:
-        spaces.space_to_spec(task.observation_space)
-        spaces.leaf_dtype(task.action_space)
+        shared.space_to_spec(task.observation_space)
+        shared.leaf_dtype(task.action_space)
     except TypeError as exc:
         raise InvalidArgument(f"env_id: env '{env_id}' cannot be served: {exc}") from exc
     for objective in task.objectives:

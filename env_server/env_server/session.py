@@ -14,7 +14,6 @@ views into them that stay valid until the session's next call.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import logging
 import math
 import threading
@@ -23,7 +22,6 @@ import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import gymnasium
 import numpy as np
 
 from env_server import spaces
@@ -32,6 +30,7 @@ from env_server.errors import FailedPrecondition, Internal, InvalidArgument, Sim
 from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, RenderBatch
 from env_server.registry import EnvEntry
 from env_server.reward_scale import REWARD_SCALE, check_reward_scale, scaled
+from env_server.shared import Autoreset, SessionSpec
 from env_server.task import Objective, Task
 
 log = logging.getLogger(__name__)
@@ -41,14 +40,6 @@ log = logging.getLogger(__name__)
 count_nonzero = np.core.multiarray.count_nonzero
 
 DEFAULT_DISCOUNT = 0.99
-
-
-class Autoreset(enum.IntEnum):
-    """What happens to an instance whose episode ended (numbers match the proto enum)."""
-
-    SAME_STEP = 1
-    NEXT_STEP = 2
-    DISABLED = 3
 
 
 SEED_LIMIT = 2**32
@@ -63,21 +54,6 @@ def check_seed_range(field: str, seeds: Sequence[int]) -> None:
         raise InvalidArgument(
             f"{field}: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got {bad[0]}"
         )
-
-
-@dataclasses.dataclass(frozen=True)
-class SessionSpec:
-    """Everything a client needs to know about a session (the EnvSpec)."""
-
-    env_id: str
-    num_envs: int
-    observation_space: gymnasium.spaces.Space
-    action_space: gymnasium.spaces.Space
-    objectives: tuple[Objective, ...]
-    max_episode_steps: int  # 0 = no time limit
-    autoreset: Autoreset
-    discount: float
-    info_keys: tuple[str, ...]  # every key the task can report
 
 
 @dataclasses.dataclass
