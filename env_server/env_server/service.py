@@ -36,11 +36,12 @@ from google.protobuf.message import DecodeError
 import env_server
 from env_server import render, wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.construction import make_session
 from env_server.datafiles import DataDirs
 from env_server.errors import ConstructorError, EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
 from env_server.memory import release_memory
 from env_server.registry import Registry
-from env_server.session import Autoreset, Session, check_seed_range, make_session
+from env_server.session import Autoreset, Session, check_seed_range
 
 log = logging.getLogger(__name__)
 

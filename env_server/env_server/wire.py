@@ -14,7 +14,8 @@ import numpy as np
 
 from env_server import shared, spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
-from env_server.session import ResetResult, Session, StepResult
+from env_server.results import ResetResult, StepResult
+from env_server.session import Session
 from env_server.task import ClosedForm, Objective
 
 if sys.byteorder != "little":

@@ -23,8 +23,8 @@ import time
 import gymnasium
 import numpy as np
 
+from env_server.construction import make_session
 from env_server.registry import Registry
-from env_server.session import make_session
 
 
 def random_actions(space: gymnasium.spaces.Space, steps: int, num_envs: int, seed: int) -> np.ndarray:
