@@ -1,168 +1,28 @@
 """`python -m env_server.tools.ray --num-servers N [options] [-- COMMAND ...]`: env servers on a Ray cluster.
 
-Starts N env servers as Ray actors spread over the cluster's nodes and restarted when they
-fail, writes their addresses to an address file (one `host:port` per line, only the servers
-that are up, rewritten atomically whenever one goes down or comes back), then runs COMMAND
-with `--server file:PATH` appended, so that `-- agent train --config c.toml` trains on them
-and re-reads the file when a server becomes unreachable. COMMAND's output is streamed, its
-exit code is the launcher's, and the servers stop when it exits. COMMAND also finds the
-file in $ENV_SERVER_ADDRESS_FILE. Without COMMAND the launcher keeps the servers and the
-file up until Ctrl-C or SIGTERM, for an agent started elsewhere. With --sweep-shards S,
-COMMAND is `agent sweep --config FILE ...`, run as S Ray tasks of one shard each (retried,
-and resumed, when a node is lost), then merged into the sweep's front (see sweep.py).
+The launcher's run: connect to (or start) Ray, start the server actors and wait for
+them (fleet.py), then run COMMAND, or COMMAND's sweep shards as Ray tasks (sweep.py),
+or wait for a signal; stop everything; exit with COMMAND's code. The flags and what
+they do are in options.py.
 """
 
 from __future__ import annotations
 
-import argparse
 import ipaddress
 import logging
 import os
-import shlex
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
 from typing import Any
 
 from env_server.tools.ray import sweep
-
-NAMESPACE = "env_server"
-"""The Ray namespace of the server actors (named NAME-0 .. NAME-(N-1), --name)."""
-
-RETRY_S = 0.5
-"""Pause before asking a restarting actor for its address again."""
-
-SLOW_RESTART_S = 60.0
-"""A server down this long is reported (once) as stuck: usually no node has the CPUs it needs."""
+from env_server.tools.ray.fleet import Fleet, LaunchError, log
+from env_server.tools.ray.options import NAMESPACE, Options, parse, ray_address
 
 _LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
-
-
-class LaunchError(Exception):
-    """A server or the cluster could not be brought up; the message says which and why."""
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m env_server.tools.ray",
-        description=__doc__.split("\n\n")[1],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        usage="%(prog)s --num-servers N [options] [-- COMMAND ...]",
-    )
-    p.add_argument("--num-servers", type=int, required=True, metavar="N", help="env servers to run (>= 1)")
-    p.add_argument(
-        "--address",
-        help="the Ray cluster: its head's host:port, or 'auto' for the one `ray start` made on this machine "
-        "(default: $RAY_ADDRESS when set, else a local Ray on 127.0.0.1 that lives as long as this launcher)",
-    )
-    p.add_argument(
-        "--address-file",
-        metavar="PATH",
-        help="file to keep the up servers' addresses in (default: a temporary file, removed at exit)",
-    )
-    p.add_argument(
-        "--server-args",
-        default="",
-        metavar="ARGS",
-        help="env_server flags for every server, one shell-quoted string, e.g. "
-        '"--auth-token-file /etc/mo/tokens --tls-cert c.pem --tls-key k.pem"; files are read on each '
-        "server's node. A server binds its node's IP, which env_server refuses off loopback without TLS and a "
-        "token or --insecure",
-    )
-    p.add_argument(
-        "--cpus-per-server",
-        type=float,
-        default=1.0,
-        help="Ray CPUs each server actor reserves (default 1; a local Ray gets N times this many)",
-    )
-    p.add_argument(
-        "--name",
-        default="env-server",
-        help=f"actor name prefix: NAME-0 .. NAME-(N-1) in Ray namespace '{NAMESPACE}' (default env-server)",
-    )
-    p.add_argument(
-        "--startup-timeout",
-        type=float,
-        default=300.0,
-        metavar="S",
-        help="seconds to wait for all N servers to listen before giving up (default 300)",
-    )
-    p.add_argument(
-        "--sweep-shards",
-        type=int,
-        metavar="S",
-        help="run COMMAND (`agent sweep --config FILE ...`) as S shards, one Ray task each (retried on node loss, "
-        "resuming the shard), then merge them into the front in --sweep-dir/front",
-    )
-    p.add_argument(
-        "--sweep-dir",
-        metavar="DIR",
-        help="with --sweep-shards: where the shard folders (shard-I-of-S) and the merged front go; every node "
-        "must reach it at this path, as it must the address file (--address-file) and COMMAND's files",
-    )
-    p.add_argument(
-        "--cpus-per-shard",
-        type=float,
-        default=1.0,
-        help="Ray CPUs each shard task reserves (default 1; a local Ray gets S times this many more)",
-    )
-    p.add_argument(
-        "--shard-retries",
-        type=int,
-        default=3,
-        metavar="R",
-        help="times Ray retries a shard whose node or worker was lost (default 3)",
-    )
-    return p
-
-
-@dataclass
-class Options:
-    """The launcher's parsed command line: its own flags and COMMAND (empty: serve until stopped)."""
-
-    args: argparse.Namespace
-    server_args: list[str]
-    command: list[str]
-
-
-def parse(argv: list[str]) -> Options:
-    """Split argv at the first `--` into the launcher's flags and COMMAND; exits 2 on bad flags."""
-    split = argv.index("--") if "--" in argv else len(argv)
-    parser = _parser()
-    args = parser.parse_args(argv[:split])
-    command = argv[split + 1 :]
-    if args.num_servers < 1:
-        parser.error(f"--num-servers: expected >= 1, got {args.num_servers}")
-    if args.cpus_per_server < 0:
-        parser.error(f"--cpus-per-server: expected >= 0, got {args.cpus_per_server}")
-    try:
-        server_args = shlex.split(args.server_args)
-    except ValueError as exc:
-        parser.error(f"--server-args: expected a shell-quoted string, got {args.server_args!r} ({exc})")
-    taken = [a for a in server_args if a.split("=", 1)[0] in ("--host", "--port", "--list")]
-    if taken:
-        parser.error(
-            f"--server-args: expected env_server flags other than --host, --port and --list (each server binds "
-            f"its node's IP and an OS-chosen port), got {taken}"
-        )
-    if "--" in argv and not command:
-        parser.error("expected a COMMAND after '--', got nothing")
-    if args.sweep_shards is not None:
-        if args.sweep_shards < 1:
-            parser.error(f"--sweep-shards: expected >= 1, got {args.sweep_shards}")
-        if args.sweep_dir is None:
-            parser.error("--sweep-shards: expected --sweep-dir DIR beside it (where the shards go), got none")
-        if args.shard_retries < 0:
-            parser.error(f"--shard-retries: expected >= 0, got {args.shard_retries}")
-        why = sweep.check_command(command)
-        if why:
-            parser.error(f"--sweep-shards: {why}")
-    elif args.sweep_dir is not None:
-        parser.error(f"--sweep-dir: expected with --sweep-shards, got it alone ({args.sweep_dir!r})")
-    return Options(args, server_args, command)
 
 
 def _is_loopback(address: str) -> bool:
@@ -173,140 +33,6 @@ def _is_loopback(address: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
-
-
-def ray_address(flag: str | None) -> str:
-    """The address for `ray.init`: the flag, else $RAY_ADDRESS, else "local" (start one here)."""
-    if flag is not None:
-        return flag
-    return os.environ.get("RAY_ADDRESS") or "local"
-
-
-def write_address_file(path: str, addresses: list[str], total: int) -> None:
-    """Replace `path` with the up servers' addresses, atomically: readers see the old file or the new one."""
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".env-servers-", dir=directory)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(f"# env servers from python -m env_server.tools.ray: {len(addresses)} of {total} up\n")
-            f.writelines(f"{a}\n" for a in addresses)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
-def _log(message: str) -> None:
-    print(f"env_server.tools.ray: {message}", file=sys.stderr, flush=True)
-
-
-@dataclass
-class _Slot:
-    """One server actor and what the launcher last heard from it."""
-
-    index: int
-    actor: Any
-    address: str | None = None
-    pending: Any = None  # ObjectRef of the call in flight: address() while starting, wait() while up
-    waiting: bool = False  # pending is wait()
-    retry_at: float = 0.0
-    starts: int = 0
-    down_since: float | None = None  # when the server was last seen going down
-
-
-class Fleet:
-    """N server actors and the address file listing those that are up.
-
-    Each actor has one call in flight: `address()` while it (re)starts, which returns once
-    its server listens, then `wait()`, which fails (or returns) when the server or the actor
-    dies. So a death is seen as soon as Ray sees it, the address leaves the file, and the
-    next `address()` call returns the restarted server's new address.
-    """
-
-    def __init__(self, ray: Any, actors: list[Any], path: str) -> None:
-        self._ray = ray
-        self.slots = [_Slot(i, actor) for i, actor in enumerate(actors)]
-        self.path = path
-        self._written: list[str] | None = None
-
-    def addresses(self) -> list[str]:
-        return [s.address for s in self.slots if s.address is not None]
-
-    def all_up(self) -> bool:
-        return all(s.address is not None for s in self.slots)
-
-    def _write(self) -> None:
-        addresses = self.addresses()
-        if addresses != self._written:
-            write_address_file(self.path, addresses, len(self.slots))
-            self._written = addresses
-
-    def poll(self, timeout: float) -> None:
-        """Wait up to `timeout` s for news from any actor and bring the file up to date."""
-        now = time.monotonic()
-        for slot in self.slots:
-            if slot.pending is None and now >= slot.retry_at:
-                slot.pending, slot.waiting = slot.actor.address.remote(), False
-            if slot.down_since is not None and now - slot.down_since > SLOW_RESTART_S:
-                _log(
-                    f"server {slot.index} still down after {SLOW_RESTART_S:g} s: Ray has not restarted its actor "
-                    "(is there a node with --cpus-per-server CPUs free?)"
-                )
-                slot.down_since = None
-        refs = [s.pending for s in self.slots if s.pending is not None]
-        if not refs:
-            time.sleep(timeout)
-            return
-        ready, _ = self._ray.wait(refs, num_returns=len(refs), timeout=timeout)
-        ready_ids = {r.hex() for r in ready}
-        for slot in self.slots:
-            if slot.pending is not None and slot.pending.hex() in ready_ids:
-                self._settle(slot)
-        self._write()
-
-    def _settle(self, slot: _Slot) -> None:
-        ref, slot.pending = slot.pending, None
-        try:
-            result = self._ray.get(ref)
-        except self._ray.exceptions.RayActorError as exc:
-            if exc.actor_init_failed:
-                raise LaunchError(f"server {slot.index} could not start: {exc}") from None
-            result = exc
-        except self._ray.exceptions.RayError as exc:
-            result = exc
-        if slot.waiting:
-            why = f"exited with code {result}" if isinstance(result, int) else "lost its actor"
-            _log(f"server {slot.index} at {slot.address} {why}; Ray restarts it")
-            slot.address = None
-            slot.down_since = time.monotonic()
-            slot.retry_at = time.monotonic() + RETRY_S
-        elif isinstance(result, Exception):
-            slot.retry_at = time.monotonic() + RETRY_S  # restarting; ask again
-        else:
-            slot.down_since = None
-            slot.address, pid, node = result
-            slot.starts += 1
-            verb = "up" if slot.starts == 1 else "back"
-            _log(f"server {slot.index} {verb} at {slot.address} (pid {pid}, node {node[:12]})")
-            slot.pending, slot.waiting = slot.actor.wait.remote(), True
-
-    def stop(self) -> None:
-        """Stop every server (SIGTERM, so sessions close) and end the actors for good."""
-        refs = []
-        for slot in self.slots:
-            try:
-                refs.append(slot.actor.stop.remote())
-            except Exception:  # an actor that is gone already has nothing to stop
-                pass
-        try:
-            self._ray.wait(refs, num_returns=len(refs), timeout=15)
-        except Exception:
-            pass
-        for slot in self.slots:
-            try:
-                self._ray.kill(slot.actor, no_restart=True)
-            except Exception:
-                pass
 
 
 class _Signals:
@@ -409,7 +135,7 @@ def run(opts: Options, signals: _Signals) -> int:
                     f"cluster for --cpus-per-server {opts.args.cpus_per_server:g}?)"
                 )
             fleet.poll(0.5)
-        _log(f"{opts.args.num_servers} servers up in {time.monotonic() - started:.1f} s; addresses in {path}")
+        log(f"{opts.args.num_servers} servers up in {time.monotonic() - started:.1f} s; addresses in {path}")
         if not opts.command:
             while signals.received is None:
                 fleet.poll(0.5)
@@ -479,11 +205,11 @@ def _run_sweep(ray: Any, fleet: Fleet, opts: Options, signals: _Signals) -> int:
                 how = f"{len(tries)} attempts, resumed {sum(t['resume'] for t in tries)}x" if len(tries) > 1 else ""
                 nodes = ", ".join(t["node"][:12] for t in tries)
                 if result["code"] == 0:
-                    _log(
+                    log(
                         f"shard {index}/{count} finished after {time.monotonic() - started:.1f} s on node {nodes} {how}"
                     )
                 else:
-                    _log(f"shard {index}/{count} failed with exit code {result['code']} (node {nodes})")
+                    log(f"shard {index}/{count} failed with exit code {result['code']} (node {nodes})")
                     failed.append(result["code"])
         if failed:
             return failed[0]
@@ -492,7 +218,7 @@ def _run_sweep(ray: Any, fleet: Fleet, opts: Options, signals: _Signals) -> int:
             ray.cancel(ref, force=True)  # the agent dies with its worker (PR_SET_PDEATHSIG)
     folders = [sweep.shard_dir(root, i, count) for i in range(count)]
     report = sweep.report_argv(command, folders, os.path.join(root, "front"))
-    _log(f"{count} shards finished in {time.monotonic() - started:.1f} s; merging into {report[-1]}")
+    log(f"{count} shards finished in {time.monotonic() - started:.1f} s; merging into {report[-1]}")
     return subprocess.run(report, check=False).returncode
 
 
@@ -502,5 +228,5 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return run(opts, signals)
     except LaunchError as exc:
-        _log(str(exc))
+        log(str(exc))
         return 2
