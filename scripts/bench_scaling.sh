@@ -4,7 +4,7 @@
 #   1. the local env_server the agent starts itself (the default),
 #   2. N env_servers on loopback, found through `--server file:PATH` (the path that
 #      `dns:` names and the Ray launcher take: one pinned channel per address),
-#   3. N env_servers as Ray actors on a local Ray (`python -m env_server.ray`).
+#   3. N env_servers as Ray actors on a local Ray (`python -m env_server.tools.ray`).
 # Env steps/s and learner steps/s are taken after the replay warm-up
 # (scripts/lib/train_rates.py). On one machine every variant shares the same cores, so
 # this measures overhead, not added capacity.
@@ -66,5 +66,5 @@ run_timed "$n servers on loopback, file:" target/release/agent "${train_args[@]}
 for pid in "${pids[@]}"; do kill "$pid" 2>/dev/null || true; done
 pids=()
 
-run_timed "$n servers as Ray actors (local Ray)" .venv/bin/python -m env_server.ray --num-servers "$n" \
+run_timed "$n servers as Ray actors (local Ray)" .venv/bin/python -m env_server.tools.ray --num-servers "$n" \
   -- target/release/agent "${train_args[@]}"

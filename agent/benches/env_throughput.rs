@@ -7,7 +7,7 @@
 //! starts it (the native front when built).
 //!
 //! For each B in {1, 8, 32}, in one run on the same machine:
-//! - in-process: `python -m env_server.bench_inprocess --raw` steps B Task instances
+//! - in-process: `python -m env_server.tools.bench_inprocess --raw` steps B Task instances
 //!   in a Python loop (what a local Python user gets);
 //! - remote: the Rust client steps one session of B instances on a local env_server,
 //!   by unary `Step`, by `StepStream`, and (B >= 2) by `StepStream` with the server
@@ -71,7 +71,7 @@ fn median_figures(runs: &[Figures]) -> Figures {
 
 fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
     let out = Command::new(default_python())
-        .args(["-m", "env_server.bench_inprocess", "--raw", "--env", env])
+        .args(["-m", "env_server.tools.bench_inprocess", "--raw", "--env", env])
         .args([
             "--num-envs",
             &num_envs.to_string(),
@@ -80,7 +80,7 @@ fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
         ])
         .env("MUJOCO_GL", "disable")
         .output()
-        .expect("run python -m env_server.bench_inprocess (scripts/setup.sh makes .venv)");
+        .expect("run python -m env_server.tools.bench_inprocess (scripts/setup.sh makes .venv)");
     assert!(
         out.status.success(),
         "bench_inprocess failed: {}",

@@ -1,4 +1,4 @@
-//! `python -m env_server.ray` running `agent train` over three env servers on a local Ray
+//! `python -m env_server.tools.ray` running `agent train` over three env servers on a local Ray
 //! cluster, with one server killed mid-run: Ray restarts it, the launcher rewrites the
 //! address file, the agent's actor moves to a live server listed there (`--server
 //! file:PATH`), and the run still reaches its env and learner step budgets. Runs the real
@@ -21,7 +21,7 @@ fn servers_up(lines: &[String]) -> Vec<(usize, i32)> {
     lines
         .iter()
         .filter_map(|line| {
-            let rest = line.split_once("env_server.ray: server ")?.1;
+            let rest = line.split_once("env_server.tools.ray: server ")?.1;
             let (index, rest) = rest.split_once(' ')?;
             if !rest.starts_with("up at ") {
                 return None;
@@ -47,7 +47,7 @@ fn training_over_ray_servers_survives_a_killed_server() {
     let mut launcher = Command::new(default_python())
         .args([
             "-m",
-            "env_server.ray",
+            "env_server.tools.ray",
             "--num-servers",
             "3",
             "--address-file",
@@ -111,7 +111,7 @@ fn training_over_ray_servers_survives_a_killed_server() {
     reader.join().unwrap();
     let lines = lines.lock().unwrap();
     assert!(status.success(), "launcher: {status}\n{}", lines.join("\n"));
-    let back = format!("env_server.ray: server {victim} back at ");
+    let back = format!("env_server.tools.ray: server {victim} back at ");
     assert!(
         lines.iter().any(|l| l.contains(&back)),
         "server {victim} did not come back:\n{}",

@@ -62,7 +62,7 @@ RUN apt-get update \
 COPY --from=build /opt/mo-mpo/.venv /opt/mo-mpo/.venv
 ENV PATH=/opt/mo-mpo/.venv/bin:$PATH PYTHONUNBUFFERED=1 PYTHONDONTWRITEBYTECODE=1
 # Fails the build if a simulator, the TLS front or the health check cannot be imported.
-RUN python -c "import env_server_native, env_server.server, env_server.healthcheck, dm_control.suite, robosuite, gymnasium_robotics, mo_gymnasium" \
+RUN python -c "import env_server_native, env_server.server, env_server.tools.healthcheck, dm_control.suite, robosuite, gymnasium_robotics, mo_gymnasium" \
  && python -m env_server --list > /dev/null
 USER 10001:10001
 EXPOSE 50051

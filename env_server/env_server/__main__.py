@@ -136,6 +136,29 @@ def _security(args: argparse.Namespace) -> tuple[ServerTls | None, Tokens | None
     return tls, tokens
 
 
+def _check_flags(args: argparse.Namespace) -> str | None:
+    """What is wrong with the numeric flags and --data-dir, or None."""
+    if (
+        args.max_sessions < 1
+        or args.max_message_mb <= 0
+        or args.session_lease <= 0
+        or args.max_workers < 0
+        or args.max_envs_per_session < 1
+        or args.max_live_envs < 1
+        or not args.keepalive_seconds > 0
+    ):
+        return (
+            "expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0, "
+            "--max-workers >= 0, --max-envs-per-session >= 1, --max-live-envs >= 1, --keepalive-seconds > 0; got "
+            f"{args.max_sessions}, {args.max_message_mb}, {args.session_lease}, {args.max_workers}, "
+            f"{args.max_envs_per_session}, {args.max_live_envs}, {args.keepalive_seconds}"
+        )
+    missing = [d for d in args.data_dir if not os.path.isdir(d)]
+    if missing:
+        return f"--data-dir: expected existing directories, got {missing}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(
@@ -149,26 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         print_list(registry)
         return 0
-    if (
-        args.max_sessions < 1
-        or args.max_message_mb <= 0
-        or args.session_lease <= 0
-        or args.max_workers < 0
-        or args.max_envs_per_session < 1
-        or args.max_live_envs < 1
-        or not args.keepalive_seconds > 0
-    ):
-        print(
-            "env-server: expected --max-sessions >= 1, --max-message-mb > 0, --session-lease > 0, "
-            "--max-workers >= 0, --max-envs-per-session >= 1, --max-live-envs >= 1, --keepalive-seconds > 0; got "
-            f"{args.max_sessions}, {args.max_message_mb}, {args.session_lease}, {args.max_workers}, "
-            f"{args.max_envs_per_session}, {args.max_live_envs}, {args.keepalive_seconds}",
-            file=sys.stderr,
-        )
-        return 2
-    missing = [d for d in args.data_dir if not os.path.isdir(d)]
-    if missing:
-        print(f"env-server: --data-dir: expected existing directories, got {missing}", file=sys.stderr)
+    problem = _check_flags(args)
+    if problem is not None:
+        print(f"env-server: {problem}", file=sys.stderr)
         return 2
 
     try:
@@ -177,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"env-server: {exc}", file=sys.stderr)
         return 2
 
-    from env_server.server import resolve_front, serve  # grpc is only needed when serving
+    from env_server.server import resolve_front  # grpc is only needed when serving
 
     try:
         front = resolve_front(args.front)
@@ -191,34 +197,39 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-
-    async def run() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(sig, stop.set)
-        await serve(
-            registry,
-            host=args.host,
-            port=args.port,
-            max_sessions=args.max_sessions,
-            max_message_bytes=int(args.max_message_mb * 1024 * 1024),
-            lease_seconds=args.session_lease,
-            max_workers=args.max_workers,
-            max_envs_per_session=args.max_envs_per_session,
-            max_live_envs=args.max_live_envs,
-            data_dirs=tuple(args.data_dir),
-            front=front,
-            busy_poll_us=args.busy_poll_us,
-            keepalive_seconds=args.keepalive_seconds,
-            tls=tls,
-            tokens=tokens,
-            insecure=args.insecure,
-            stop=stop,
-        )
-
-    asyncio.run(run())
+    asyncio.run(_serve(args, registry, front, tls, tokens))
     return 0
+
+
+async def _serve(
+    args: argparse.Namespace, registry: Registry, front: str, tls: ServerTls | None, tokens: Tokens | None
+) -> None:
+    """Serve until SIGTERM or SIGINT."""
+    from env_server.server import serve
+
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    await serve(
+        registry,
+        host=args.host,
+        port=args.port,
+        max_sessions=args.max_sessions,
+        max_message_bytes=int(args.max_message_mb * 1024 * 1024),
+        lease_seconds=args.session_lease,
+        max_workers=args.max_workers,
+        max_envs_per_session=args.max_envs_per_session,
+        max_live_envs=args.max_live_envs,
+        data_dirs=tuple(args.data_dir),
+        front=front,
+        busy_poll_us=args.busy_poll_us,
+        keepalive_seconds=args.keepalive_seconds,
+        tls=tls,
+        tokens=tokens,
+        insecure=args.insecure,
+        stop=stop,
+    )
 
 
 if __name__ == "__main__":

@@ -53,10 +53,8 @@ from env_server.connection import (
     UnauthenticatedError,
     read_token_file,
 )
-from env_server.envs import REGISTRY
 from env_server.remote import RemoteSession, autoreset_mode, from_tensor, objectives, to_tensor, tree
-from env_server.session import Autoreset
-from env_server.task import Objective
+from env_server.shared import SHIPPED_ENV_IDS, Autoreset, Objective
 
 __all__ = [  # the errors and token reader live in connection.py, the tensors in remote.py
     "FailedPreconditionError",
@@ -397,5 +395,5 @@ class RemoteEnv(gymnasium.Env):
         super().close()
 
 
-for _env_id in REGISTRY:
+for _env_id in SHIPPED_ENV_IDS:
     register(_env_id)

@@ -15,7 +15,7 @@ from typing import Any
 import grpc
 
 from env_server._proto.mo_env.v1 import env_pb2_grpc
-from env_server.security import parse_token_lines
+from env_server.shared import parse_token_lines
 
 
 class RemoteError(Exception):

@@ -1,6 +1,7 @@
-"""Building a session's instances (`build_instances`): in the server process or in worker
-processes, with the checks every env must pass before a client sees it (unique
-objective names, servable spaces, info keys, closed-form action-norm bounds).
+"""Building a session: `make_session` checks a Make's options and wraps the instances
+`build_instances` builds, in the server process or in worker processes, with the checks
+every env must pass before a client sees it (unique objective names, servable spaces,
+info keys, closed-form action-norm bounds), in a Session.
 """
 
 from __future__ import annotations
@@ -13,12 +14,59 @@ from typing import Any
 
 import gymnasium
 
-from env_server import spaces
+from env_server import shared
 from env_server.errors import ConstructorError, Internal, InvalidArgument, quote
 from env_server.instances import InstanceFailure, Instances, LocalInstances, TaskInfo, build_tasks
 from env_server.registry import EnvEntry, construct
+from env_server.reward_scale import REWARD_SCALE, check_reward_scale
+from env_server.session import DEFAULT_DISCOUNT, Session
+from env_server.shared import Autoreset
 from env_server.task import ClosedForm, Objective, action_norm_bounds
 from env_server.workers import WorkerInstances
+
+
+def make_session(
+    entry: EnvEntry,
+    num_envs: int,
+    kwargs: Mapping[str, Any],
+    *,
+    seed: int | None = None,
+    autoreset: Autoreset = Autoreset.SAME_STEP,
+    discount: float | None = None,
+    info_keys: Sequence[str] = (),
+    session_id: str | None = None,
+    num_workers: int = 0,
+    cancel: threading.Event | None = None,
+) -> Session:
+    """Validate the request, construct num_envs Tasks and wrap them in a Session.
+
+    num_workers = 0 keeps the Tasks in this process; N >= 1 splits them into N + 1
+    shares, one kept here and one per worker process, stepped in parallel. May take
+    seconds for heavy simulators; the server runs it in a thread, and sets `cancel` when
+    the client goes away (construction stops before the next instance).
+    """
+    if num_envs < 1:
+        raise InvalidArgument(f"num_envs: expected >= 1, got {num_envs}")
+    discount = DEFAULT_DISCOUNT if discount is None else float(discount)
+    if not (math.isfinite(discount) and 0.0 <= discount <= 1.0):
+        raise InvalidArgument(f"discount: expected 0 <= discount <= 1, got {discount}")
+    kwargs = dict(kwargs)
+    reward_scale = check_reward_scale(kwargs.pop(REWARD_SCALE, None))
+    instances = build_instances(entry, kwargs, num_envs, num_workers, info_keys, cancel)
+    try:
+        return Session(
+            entry.env_id,
+            instances,
+            seed=seed,
+            autoreset=autoreset,
+            discount=discount,
+            info_keys=info_keys,
+            session_id=session_id,
+            reward_scale=reward_scale,
+        )
+    except BaseException:
+        instances.close()
+        raise
 
 
 def build_instances(
@@ -74,8 +122,8 @@ def _check_task(env_id: str, task: TaskInfo, info_keys: Sequence[str]) -> None:
     if not names or len(set(names)) != len(names):
         raise Internal(f"env '{env_id}': objectives must be non-empty with unique names, got {names}")
     try:
-        spaces.space_to_spec(task.observation_space)
-        spaces.leaf_dtype(task.action_space)
+        shared.space_to_spec(task.observation_space)
+        shared.leaf_dtype(task.action_space)
     except TypeError as exc:
         raise InvalidArgument(f"env_id: env '{env_id}' cannot be served: {exc}") from exc
     for objective in task.objectives:

@@ -16,11 +16,9 @@ from typing import Any
 import grpc
 import numpy as np
 
-from env_server import spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import Channel, NotFoundError, PathLike, RemoteError, Stream
-from env_server.session import Autoreset, SessionSpec
-from env_server.task import ClosedForm, Objective
+from env_server.shared import Autoreset, ClosedForm, Objective, SessionSpec, leaf_dtype, spec_to_space
 
 _PB_TO_DTYPE = {
     pb.DTYPE_FLOAT32: np.dtype(np.float32),
@@ -160,15 +158,15 @@ class RemoteSession:
         self.spec = SessionSpec(
             env_id=s.env_id,
             num_envs=s.num_envs,
-            observation_space=spaces.spec_to_space(_space_spec(s.observation_space)),
-            action_space=spaces.spec_to_space(_space_spec(s.action_space)),
+            observation_space=spec_to_space(_space_spec(s.observation_space)),
+            action_space=spec_to_space(_space_spec(s.action_space)),
             objectives=objectives(s.objectives),
             max_episode_steps=s.max_episode_steps,
             autoreset=Autoreset(s.autoreset_mode),
             discount=s.discount,
             info_keys=tuple(s.info_keys),
         )
-        action_dtype = spaces.leaf_dtype(self.spec.action_space)
+        action_dtype = leaf_dtype(self.spec.action_space)
         self._action_dtype = action_dtype
         self._action_pb_dtype = _DTYPE_TO_PB[action_dtype.name]
         self._stream: Stream | None = None

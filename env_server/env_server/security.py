@@ -5,10 +5,7 @@ front, which checks tokens in Rust against the same `Tokens.entries`) take the
 `authorization` metadata value and TLS material from here. A token's *name* is the
 client's identity: service.py binds each session to the name that made it.
 
-Token file: one token per line, optionally `name:token`; blank lines and lines
-starting with `#` are skipped. A token is at least 16 printable ASCII characters
-without spaces or `:` (`python -c "import secrets; print(secrets.token_urlsafe(32))"`).
-A line without a name is named `token-<line number>`.
+The token file's format, which the client reads too, is in shared.py.
 """
 
 from __future__ import annotations
@@ -19,8 +16,8 @@ import ipaddress
 import pathlib
 
 from env_server.errors import Unauthenticated
+from env_server.shared import SecurityConfigError, parse_token_lines
 
-MIN_TOKEN_CHARS = 16
 BEARER = "bearer "
 
 # Messages of the two UNAUTHENTICATED answers; the native front (auth.rs) sends the same
@@ -28,32 +25,6 @@ BEARER = "bearer "
 MISSING_TOKEN = "expected metadata 'authorization: Bearer <token>', got no authorization metadata"
 MALFORMED_TOKEN = "expected metadata 'authorization: Bearer <token>', got a value that does not start with 'Bearer '"
 UNKNOWN_TOKEN = "the bearer token in 'authorization' matches none of this server's tokens (--auth-token-file)"
-
-
-class SecurityConfigError(ValueError):
-    """A token file, TLS file or bind address the server refuses to start with."""
-
-
-def parse_token_lines(text: str, source: str) -> list[tuple[str, str]]:
-    """(name, token) for every token line of a token file's `text` (see the module doc)."""
-    entries: list[tuple[str, str]] = []
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        name, sep, token = line.rpartition(":")
-        if not sep:
-            name = f"token-{number}"
-        where = f"{source} line {number}"
-        if not name or any(c.isspace() for c in name):
-            raise SecurityConfigError(f"{where}: expected 'name:token' with a name without spaces, got an empty name")
-        if len(token) < MIN_TOKEN_CHARS or not token.isascii() or not token.isprintable() or " " in token:
-            raise SecurityConfigError(
-                f"{where}: expected a token of at least {MIN_TOKEN_CHARS} printable ASCII characters without "
-                f"spaces or ':', got one of {len(token)} characters"
-            )
-        entries.append((name, token))
-    return entries
 
 
 @dataclasses.dataclass(frozen=True)

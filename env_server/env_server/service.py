@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import dataclasses
 import functools
 import json
 import logging
@@ -35,11 +36,12 @@ from google.protobuf.message import DecodeError
 import env_server
 from env_server import render, wire
 from env_server._proto.mo_env.v1 import env_pb2 as pb
+from env_server.construction import make_session
 from env_server.datafiles import DataDirs
 from env_server.errors import ConstructorError, EnvServerError, InvalidArgument, NotFound, ResourceExhausted, quote
 from env_server.memory import release_memory
 from env_server.registry import Registry
-from env_server.session import Autoreset, Session, check_seed_range, make_session
+from env_server.session import Autoreset, Session, check_seed_range
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +118,15 @@ class Reply(Protocol):
     def error(self, code_name: str, message: str) -> None: ...
 
 
+@dataclasses.dataclass
+class Lease:
+    """An open session and what the service keeps beside it."""
+
+    session: Session
+    encoder: wire.StepEncoder  # writes its Step responses
+    owner: str | None  # the client name that made it (None without tokens)
+
+
 class EnvService:
     """mo_env.v1.EnvService over a Registry and a table of leased Sessions."""
 
@@ -141,9 +152,7 @@ class EnvService:
         self.max_message_bytes = max_message_bytes
         self.lease_seconds = lease_seconds
         self.loop = loop
-        self.sessions: dict[str, Session] = {}
-        self._encoders: dict[str, wire.StepEncoder] = {}  # per session, for its Step responses
-        self._owners: dict[str, str | None] = {}  # per session, the client name that made it
+        self.leases: dict[str, Lease] = {}  # by session id
         self._making = 0  # Make calls between the limit check and registration
         self._making_envs = 0  # the instances those calls are building
         self._release_pending = False
@@ -153,25 +162,26 @@ class EnvService:
     status_of = staticmethod(status_of)
 
     # -------------------------------------------------------------- sessions
-    def _session(self, session_id: str, owner: str | None) -> Session:
-        session = self.sessions.get(session_id)
-        if session is None or self._owners.get(session_id) != owner:
+    def _lease(self, session_id: str, owner: str | None) -> Lease:
+        lease = self.leases.get(session_id)
+        if lease is None or lease.owner != owner:
             raise NotFound(f"unknown session '{session_id}' (closed, expired, or never made)")
-        return session
+        return lease
+
+    def _session(self, session_id: str, owner: str | None) -> Session:
+        return self._lease(session_id, owner).session
 
     def close_session(self, session_id: str, reason: str) -> None:
         with self._lock:
-            session = self.sessions.pop(session_id, None)
-            self._encoders.pop(session_id, None)
-            self._owners.pop(session_id, None)
-            if session is not None:
-                session.close()
-        if session is None:
+            lease = self.leases.pop(session_id, None)
+            if lease is not None:
+                lease.session.close()
+        if lease is None:
             return
-        env_id = session.env_id
-        del session  # the last reference: release_memory can only return what is freed
+        env_id = lease.session.env_id
+        del lease  # the last reference: release_memory can only return what is freed
         self._release_soon()
-        log.info("closed session %s (%s): %s; %d open", session_id, env_id, reason, len(self.sessions))
+        log.info("closed session %s (%s): %s; %d open", session_id, env_id, reason, len(self.leases))
 
     def _release_soon(self) -> None:
         """release_memory on the loop shortly, once for a burst of Closes (close_all, the
@@ -192,7 +202,7 @@ class EnvService:
         release_memory()
 
     def close_all(self) -> None:
-        for session_id in list(self.sessions):
+        for session_id in list(self.leases):
             self.close_session(session_id, "server shutdown")
 
     async def reap(self) -> None:
@@ -203,7 +213,7 @@ class EnvService:
             deadline = time.monotonic() - self.lease_seconds
             # No Session in this frame across the sleep: a loop variable left holding the
             # last one kept a closed session's simulators alive until the next sweep.
-            expired = [sid for sid, session in list(self.sessions.items()) if session.last_used < deadline]
+            expired = [sid for sid, lease in list(self.leases.items()) if lease.session.last_used < deadline]
             for session_id in expired:
                 self.close_session(session_id, f"lease of {self.lease_seconds:g} s expired")
 
@@ -232,11 +242,11 @@ class EnvService:
     def _live_envs(self) -> int:
         """Instances in open sessions and in Makes still building."""
         with self._lock:  # the native front's thread may close sessions meanwhile
-            return self._making_envs + sum(session.num_envs for session in self.sessions.values())
+            return self._making_envs + sum(lease.session.num_envs for lease in self.leases.values())
 
     def _check_limits(self, num_envs: int) -> None:
         """The server-wide limits: open sessions and live instances."""
-        open_now = len(self.sessions) + self._making
+        open_now = len(self.leases) + self._making
         if open_now >= self.max_sessions:
             raise ResourceExhausted(
                 f"session limit {self.max_sessions} reached ({open_now} open); close sessions or start "
@@ -298,17 +308,16 @@ class EnvService:
         finally:
             self._making -= 1
             self._making_envs -= request.num_envs
+        encoder = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
         with self._lock:
-            self.sessions[session.id] = session
-            self._encoders[session.id] = wire.StepEncoder(session.leaves, session.num_envs, len(session.objectives))
-            self._owners[session.id] = owner
+            self.leases[session.id] = Lease(session, encoder, owner)
         log.info(
             "made session %s: %s x%d%s; %d open",
             session.id,
             session.env_id,
             session.num_envs,
             "" if owner is None else f" for client {owner!r}",
-            len(self.sessions),
+            len(self.leases),
         )
         return pb.MakeResponse(session_id=session.id, spec=wire.spec_pb(session), lease_seconds=self.lease_seconds)
 
@@ -366,10 +375,10 @@ class EnvService:
     def step(self, session_id: str, dtype: int, shape: Sequence[int], data: bytes, owner: str | None = None) -> bytes:
         """One Step of client `owner`, as a serialized StepResponse (wire.StepEncoder's bytes)."""
         with self._lock:
-            session = self.sessions.get(session_id)
-            if session is None or self._owners[session_id] != owner:
-                self._session(session_id, owner)
-            return self._encoders[session_id].encode(session.step(_dtype_name(dtype), shape, data))
+            lease = self.leases.get(session_id)
+            if lease is None or lease.owner != owner:
+                lease = self._lease(session_id, owner)
+            return lease.encoder.encode(lease.session.step(_dtype_name(dtype), shape, data))
 
     def open_stream(self) -> StreamSteps:
         return StreamSteps(self)

@@ -4,34 +4,30 @@ Where the instances run (in this process, or spread over worker processes) is th
 business of instances.py, workers.py and construction.py; a Session hands them one batch of steps and resets per call.
 
 This is the whole server minus gRPC: validation, seeding, autoreset, time limits and
-server-side episode returns live here, so bench_inprocess measures exactly what the
-server does per Step except the transport. No grpc imports; errors are errors.py types.
+server-side episode returns live here, so tools/bench_inprocess.py measures exactly what
+the server does per Step except the transport. No grpc imports; errors are errors.py
+types. construction.make_session builds a Session for a Make.
 
-Buffers are preallocated per session and reused by every Step: a StepResult holds
-views into them that stay valid until the session's next call.
+Buffers are preallocated per session and reused by every Step: a StepResult
+(results.py) holds views into them that stay valid until the session's next call.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import enum
 import logging
-import math
-import threading
 import time
 import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import gymnasium
 import numpy as np
 
 from env_server import spaces
-from env_server.construction import build_instances
 from env_server.errors import FailedPrecondition, Internal, InvalidArgument, SimulatorError, quote
 from env_server.instances import InstanceFailure, Instances, LocalInstances, Outcomes, RenderBatch
-from env_server.registry import EnvEntry
-from env_server.reward_scale import REWARD_SCALE, check_reward_scale, scaled
+from env_server.results import EpisodeEnd, ResetResult, StepResult, info_array
+from env_server.reward_scale import REWARD_SCALE, scaled
+from env_server.shared import Autoreset, SessionSpec
 from env_server.task import Objective, Task
 
 log = logging.getLogger(__name__)
@@ -41,14 +37,6 @@ log = logging.getLogger(__name__)
 count_nonzero = np.core.multiarray.count_nonzero
 
 DEFAULT_DISCOUNT = 0.99
-
-
-class Autoreset(enum.IntEnum):
-    """What happens to an instance whose episode ended (numbers match the proto enum)."""
-
-    SAME_STEP = 1
-    NEXT_STEP = 2
-    DISABLED = 3
 
 
 SEED_LIMIT = 2**32
@@ -63,63 +51,6 @@ def check_seed_range(field: str, seeds: Sequence[int]) -> None:
         raise InvalidArgument(
             f"{field}: expected instance seeds in [0, 2**32) (a seed s for B instances uses s .. s+B-1), got {bad[0]}"
         )
-
-
-@dataclasses.dataclass(frozen=True)
-class SessionSpec:
-    """Everything a client needs to know about a session (the EnvSpec)."""
-
-    env_id: str
-    num_envs: int
-    observation_space: gymnasium.spaces.Space
-    action_space: gymnasium.spaces.Space
-    objectives: tuple[Objective, ...]
-    max_episode_steps: int  # 0 = no time limit
-    autoreset: Autoreset
-    discount: float
-    info_keys: tuple[str, ...]  # every key the task can report
-
-
-@dataclasses.dataclass
-class EpisodeEnd:
-    """An episode that ended in a Step, with its server-side returns."""
-
-    env_index: int
-    episode_return: np.ndarray  # float64 [K]
-    discounted_return: np.ndarray  # float64 [K]
-    length: int
-    terminated: bool
-    truncated: bool
-
-
-@dataclasses.dataclass
-class StepResult:
-    """One batch step; arrays are views into session buffers, valid until the next call."""
-
-    observation: list[tuple[spaces.Leaf, np.ndarray]]  # [B, ...] per leaf
-    reward: np.ndarray  # float32 [B, K]
-    terminated: np.ndarray  # bool [B]
-    truncated: np.ndarray  # bool [B]
-    info: list[tuple[str, np.ndarray]]  # [B, ...] per requested key
-    episodes: list[EpisodeEnd]
-    final_observation: list[tuple[spaces.Leaf, np.ndarray]]  # [len(episodes), ...] per leaf
-
-
-@dataclasses.dataclass
-class ResetResult:
-    observation: list[tuple[spaces.Leaf, np.ndarray]]  # [n, ...] per leaf
-    info: list[tuple[str, np.ndarray]]
-
-
-def _info_array(value: Any) -> np.ndarray:
-    arr = np.asarray(value)
-    if arr.dtype.kind == "f":
-        return arr.astype(np.float64 if arr.dtype == np.float64 else np.float32)
-    if arr.dtype.kind == "b":
-        return arr.astype(np.bool_)
-    if arr.dtype.kind in "iu":
-        return arr.astype(np.int64)
-    raise TypeError(f"info value of dtype {arr.dtype} is not numeric")
 
 
 class Session:
@@ -258,7 +189,7 @@ class Session:
         for key in self._info_keys:
             if key not in info:
                 continue
-            value = _info_array(info[key])
+            value = info_array(info[key])
             buf = self._info.get(key)
             if buf is None:
                 buf = self._info[key] = np.zeros((self.num_envs, *value.shape), value.dtype)
@@ -294,13 +225,13 @@ class Session:
             self._failure = ""
         info_out = []
         for key in self._info_keys:
-            values = [_info_array(info[key]) for info in infos if key in info]
+            values = [info_array(info[key]) for info in infos if key in info]
             if not values:
                 continue
             arr = np.zeros((n, *values[0].shape), values[0].dtype)
             for pos, info in enumerate(infos):
                 if key in info:
-                    arr[pos] = _info_array(info[key])
+                    arr[pos] = info_array(info[key])
             info_out.append((key, arr))
         return ResetResult(list(zip(self.leaves, bufs)), info_out)
 
@@ -326,25 +257,37 @@ class Session:
         else:
             np.copyto(self._actions, actions)
             rows = self._all_rows
-        reward, terminated, truncated, live = self._reward, self._terminated, self._truncated, self._live
-        k = self._k
         for buf in self._info.values():
             buf.fill(0)
         next_step_reset = autoreset is Autoreset.NEXT_STEP and self._ended.any()
         resets: list[tuple[int, int | None]] = []
         if next_step_reset:
             # Instances whose episode ended last Step reset now instead of stepping.
-            np.logical_not(self._ended, out=live)
+            np.logical_not(self._ended, out=self._live)
             resets = [(i, None) for i in np.flatnonzero(self._ended).tolist()]
-            rows = [row for row in rows if live[row[0]]]
+            rows = [row for row in rows if self._live[row[0]]]
         outcomes = self._run(rows, resets)
-        for (i, _), reset in zip(resets, outcomes.resets):
+        self._write_resets(resets, outcomes.resets)
+        self._write_steps(rows, outcomes.steps)
+        if self._scale is not None:
+            self._reward *= self._scale
+        self._count_step(next_step_reset)
+        episodes, finals = self._end_episodes(autoreset)
+        info = [(key, self._info[key]) for key in self._info_keys if key in self._info]
+        return StepResult(self._obs_out, self._reward, self._terminated, self._truncated, info, episodes, finals)
+
+    def _write_resets(self, resets: Sequence[tuple[int, int | None]], outcomes: Sequence[Any]) -> None:
+        """NEXT_STEP's resets: a new first observation, no reward, not done."""
+        for (i, _), reset in zip(resets, outcomes):
             self._write_obs(i, reset.observation, self._obs)
-            reward[i] = 0.0
-            terminated[i] = truncated[i] = False
+            self._reward[i] = 0.0
+            self._terminated[i] = self._truncated[i] = False
             if self._info_keys:
                 self._collect_info(i, reset.info)
-        for (i, _), out in zip(rows, outcomes.steps):
+
+    def _write_steps(self, rows: Sequence[tuple[int, Any]], outcomes: Sequence[Any]) -> None:
+        reward, terminated, truncated, k = self._reward, self._terminated, self._truncated, self._k
+        for (i, _), out in zip(rows, outcomes):
             r = out.reward
             if getattr(r, "shape", None) != (k,):
                 r = np.asarray(r, np.float32)
@@ -363,12 +306,13 @@ class Session:
             self._write_obs(i, out.observation, self._obs)
             if self._info_keys:
                 self._collect_info(i, out.info)
-        if self._scale is not None:
-            reward *= self._scale
 
+    def _count_step(self, next_step_reset: bool) -> None:
+        """The step's reward into the episode returns, and the time limit's truncations."""
+        reward, terminated, truncated = self._reward, self._terminated, self._truncated
         if next_step_reset:
-            self._account(live)
-            terminated &= live
+            self._account(self._live)
+            terminated &= self._live
         else:
             # In place and into preallocated buffers: right after the simulator step the
             # caches are cold and every temporary costs microseconds.
@@ -380,31 +324,35 @@ class Session:
         if self._max_steps and np.maximum.reduce(self._ep_len) >= self._max_steps:
             truncated |= ~terminated & (self._ep_len >= self._max_steps)
 
+    def _end_episodes(self, autoreset: Autoreset) -> tuple[list[EpisodeEnd], list[tuple[spaces.Leaf, np.ndarray]]]:
+        """The records of the episodes this step ended and, under SAME_STEP, their last
+        observations (the instances reset at once)."""
         episodes: list[EpisodeEnd] = []
         finals: list[tuple[spaces.Leaf, np.ndarray]] = []
+        terminated, truncated = self._terminated, self._truncated
         done = np.logical_or(terminated, truncated, out=self._done)
-        if count_nonzero(done):
-            ended = np.flatnonzero(done)
-            for i in ended.tolist():
-                episodes.append(
-                    EpisodeEnd(
-                        i,
-                        self._ep_ret[i].copy(),
-                        self._ep_disc[i].copy(),
-                        int(self._ep_len[i]),
-                        bool(terminated[i]),
-                        bool(truncated[i]),
-                    )
+        if not count_nonzero(done):
+            return episodes, finals
+        ended = np.flatnonzero(done)
+        for i in ended.tolist():
+            episodes.append(
+                EpisodeEnd(
+                    i,
+                    self._ep_ret[i].copy(),
+                    self._ep_disc[i].copy(),
+                    int(self._ep_len[i]),
+                    bool(terminated[i]),
+                    bool(truncated[i]),
                 )
-            if autoreset is Autoreset.SAME_STEP:
-                finals = [(leaf, buf[ended]) for leaf, buf in zip(self.leaves, self._obs)]
-                ended_list = ended.tolist()
-                for i, out in zip(ended_list, self._run((), [(i, None) for i in ended_list]).resets):
-                    self._write_obs(i, out.observation, self._obs)
-            else:
-                self._ended[ended] = True
-        info = [(key, self._info[key]) for key in self._info_keys if key in self._info]
-        return StepResult(self._obs_out, reward, terminated, truncated, info, episodes, finals)
+            )
+        if autoreset is Autoreset.SAME_STEP:
+            finals = [(leaf, buf[ended]) for leaf, buf in zip(self.leaves, self._obs)]
+            ended_list = ended.tolist()
+            for i, out in zip(ended_list, self._run((), [(i, None) for i in ended_list]).resets):
+                self._write_obs(i, out.observation, self._obs)
+        else:
+            self._ended[ended] = True
+        return episodes, finals
 
     @property
     def cameras(self) -> tuple[str, ...]:
@@ -478,47 +426,3 @@ class Session:
             return
         self.closed = True
         self._instances.close()
-
-
-def make_session(
-    entry: EnvEntry,
-    num_envs: int,
-    kwargs: Mapping[str, Any],
-    *,
-    seed: int | None = None,
-    autoreset: Autoreset = Autoreset.SAME_STEP,
-    discount: float | None = None,
-    info_keys: Sequence[str] = (),
-    session_id: str | None = None,
-    num_workers: int = 0,
-    cancel: threading.Event | None = None,
-) -> Session:
-    """Validate the request, construct num_envs Tasks and wrap them in a Session.
-
-    num_workers = 0 keeps the Tasks in this process; N >= 1 splits them into N + 1
-    shares, one kept here and one per worker process, stepped in parallel. May take
-    seconds for heavy simulators; the server runs it in a thread, and sets `cancel` when
-    the client goes away (construction stops before the next instance).
-    """
-    if num_envs < 1:
-        raise InvalidArgument(f"num_envs: expected >= 1, got {num_envs}")
-    discount = DEFAULT_DISCOUNT if discount is None else float(discount)
-    if not (math.isfinite(discount) and 0.0 <= discount <= 1.0):
-        raise InvalidArgument(f"discount: expected 0 <= discount <= 1, got {discount}")
-    kwargs = dict(kwargs)
-    reward_scale = check_reward_scale(kwargs.pop(REWARD_SCALE, None))
-    instances = build_instances(entry, kwargs, num_envs, num_workers, info_keys, cancel)
-    try:
-        return Session(
-            entry.env_id,
-            instances,
-            seed=seed,
-            autoreset=autoreset,
-            discount=discount,
-            info_keys=info_keys,
-            session_id=session_id,
-            reward_scale=reward_scale,
-        )
-    except BaseException:
-        instances.close()
-        raise

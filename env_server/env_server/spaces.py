@@ -1,13 +1,7 @@
-"""Gymnasium spaces <-> plain spec dicts, observation leaves, and action validation.
+"""The server's side of the spaces: observation leaves and action validation.
 
-No gRPC here: wire.py turns the spec dicts into protobuf and client.py turns them
-back into gymnasium spaces, so both sides share one definition of the mapping.
-
-Spec dicts (one key each):
-    {"box": {"dtype": "float32", "shape": [21], "low": [-1.0], "high": [1.0]}}
-    {"discrete": {"n": 4, "start": 0}}
-    {"dict": [("joint", <spec>), ("target", <spec>)]}
-Box low/high hold one value when every element shares it, else prod(shape) values.
+No gRPC here. The spaces <-> spec dicts mapping, which the client uses too, is in
+shared.py.
 """
 
 from __future__ import annotations
@@ -15,15 +9,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import gymnasium
 import numpy as np
 
 from env_server.errors import InvalidArgument, quote
-
-#: The dtypes the wire format carries, by numpy name.
-SUPPORTED_DTYPES: tuple[str, ...] = ("float32", "float64", "int32", "int64", "uint8", "bool")
+from env_server.shared import leaf_dtype
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,18 +27,6 @@ class Leaf:
     shape: tuple[int, ...]
 
 
-def leaf_dtype(space: gymnasium.spaces.Space) -> np.dtype:
-    """The dtype a Box/Discrete value travels as (Discrete always as int64)."""
-    if isinstance(space, gymnasium.spaces.Discrete):
-        return np.dtype(np.int64)
-    if isinstance(space, gymnasium.spaces.Box):
-        dtype = np.dtype(space.dtype)
-        if dtype.name not in SUPPORTED_DTYPES:
-            raise TypeError(f"Box dtype {dtype.name} is not supported; expected one of {SUPPORTED_DTYPES}")
-        return dtype
-    raise TypeError(f"space {space} is not supported here; expected Box or Discrete")
-
-
 def leaves(space: gymnasium.spaces.Space, _prefix: tuple[str, ...] = ()) -> list[Leaf]:
     """Flatten a Box/Discrete/Dict tree into leaves in Dict order."""
     if isinstance(space, gymnasium.spaces.Dict):
@@ -57,54 +36,6 @@ def leaves(space: gymnasium.spaces.Space, _prefix: tuple[str, ...] = ()) -> list
         return out
     shape = () if isinstance(space, gymnasium.spaces.Discrete) else tuple(int(d) for d in space.shape)
     return [Leaf(".".join(_prefix), _prefix, leaf_dtype(space), shape)]
-
-
-def _bound_list(values: np.ndarray) -> list[float]:
-    flat = np.asarray(values, dtype=np.float64).reshape(-1)
-    if flat.size and np.all(flat == flat[0]):
-        return [float(flat[0])]
-    return [float(v) for v in flat]
-
-
-def space_to_spec(space: gymnasium.spaces.Space) -> dict[str, Any]:
-    """Describe a gymnasium space as a spec dict (see module docstring)."""
-    if isinstance(space, gymnasium.spaces.Dict):
-        return {"dict": [(str(k), space_to_spec(s)) for k, s in space.spaces.items()]}
-    if isinstance(space, gymnasium.spaces.Discrete):
-        return {"discrete": {"n": int(space.n), "start": int(space.start)}}
-    if isinstance(space, gymnasium.spaces.Box):
-        return {
-            "box": {
-                "dtype": leaf_dtype(space).name,
-                "shape": [int(d) for d in space.shape],
-                "low": _bound_list(space.low),
-                "high": _bound_list(space.high),
-            }
-        }
-    raise TypeError(f"space {space} is not supported; expected Box, Discrete or Dict")
-
-
-def spec_to_space(spec: dict[str, Any]) -> gymnasium.spaces.Space:
-    """Rebuild a gymnasium space from a spec dict."""
-    if "dict" in spec:
-        # A sequence of pairs keeps the wire order (a plain dict would be re-sorted).
-        return gymnasium.spaces.Dict([(k, spec_to_space(s)) for k, s in spec["dict"]])
-    if "discrete" in spec:
-        return gymnasium.spaces.Discrete(spec["discrete"]["n"], start=spec["discrete"]["start"])
-    box = spec["box"]
-    dtype = np.dtype(box["dtype"])
-    shape = tuple(box["shape"])
-
-    def bound(values: Sequence[float]) -> np.ndarray:
-        arr = np.asarray(values, dtype=np.float64)
-        arr = np.full(shape, arr[0]) if arr.size == 1 else arr.reshape(shape)
-        if dtype.kind in "iub":
-            info = np.iinfo(dtype) if dtype.kind != "b" else None
-            lo, hi = (0, 1) if info is None else (info.min, info.max)
-            arr = np.clip(np.nan_to_num(arr, posinf=hi, neginf=lo), lo, hi)
-        return arr.astype(dtype)
-
-    return gymnasium.spaces.Box(bound(box["low"]), bound(box["high"]), shape=shape, dtype=dtype)
 
 
 def _fmt_index(index: tuple[int, ...]) -> str:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import enum
 import math
 from typing import Any, ClassVar
 
@@ -27,27 +26,10 @@ import numpy as np
 
 from env_server.errors import FailedPrecondition
 
-
-class ClosedForm(enum.Enum):
-    """What an objective's per-step reward is as a function of the step's action alone.
-
-    Declared on the `Objective` and served as `ObjectiveSpec.closed_form`: a learner may
-    compute a declared objective from the action instead of learning it (the agent's
-    `source = "action_norm"`), and refuses to for an objective that declares nothing.
-    """
-
-    #: No closed form: the reward depends on more than the action (the default).
-    NONE = "none"
-    #: reward = -||a||_2 (times `Objective.scale`): `a` is the action `Task.step`
-    #: receives, which is the client's action exactly as sent (the server refuses
-    #: actions outside the Box; nothing clips or rescales them), and ||.||_2 the
-    #: Euclidean norm over all its elements. Box action spaces only; `min` and `max`
-    #: must be the exact bounds of that over the Box (the server checks): for Box(-2, 2,
-    #: (1,)) min = -2, max = 0. A reward of -a^2 or -||a||_1 is NOT this: leave NONE.
-    ACTION_NORM = "action_norm"
-    #: Not declared either way: only on objectives a client read from a server older
-    #: than `ObjectiveSpec.closed_form` (a Task never sets it).
-    UNDECLARED = "undeclared"
+# Declared here for Task authors (`from env_server.task import Objective`); defined in
+# shared.py, which the client imports without the server.
+from env_server.shared import ClosedForm as ClosedForm
+from env_server.shared import Objective as Objective
 
 
 def action_norm_bounds(action_space: gymnasium.spaces.Box) -> tuple[float, float]:
@@ -58,21 +40,6 @@ def action_norm_bounds(action_space: gymnasium.spaces.Box) -> tuple[float, float
     nearest = np.where(holds_zero, 0.0, np.minimum(np.abs(low), np.abs(high)))
     # + 0.0: a Box that holds zero gives max 0, not -0.
     return -math.sqrt(float(np.sum(largest**2))) + 0.0, -math.sqrt(float(np.sum(nearest**2))) + 0.0
-
-
-@dataclasses.dataclass(frozen=True)
-class Objective:
-    """One entry of the vector reward."""
-
-    name: str
-    description: str
-    min: float = -math.inf
-    max: float = math.inf
-    #: What the session multiplies this reward by (Make kwarg `reward_scale`); min and
-    #: max are already scaled.
-    scale: float = 1.0
-    #: The reward's closed form, if it has one a learner may use instead of a critic.
-    closed_form: ClosedForm = ClosedForm.NONE
 
 
 @dataclasses.dataclass

@@ -12,9 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from env_server import spaces
+from env_server import shared, spaces
 from env_server._proto.mo_env.v1 import env_pb2 as pb
-from env_server.session import ResetResult, Session, StepResult
+from env_server.results import ResetResult, StepResult
+from env_server.session import Session
 from env_server.task import ClosedForm, Objective
 
 if sys.byteorder != "little":
@@ -40,7 +41,7 @@ def named(leaves: list[tuple[Any, np.ndarray]]) -> list[pb.NamedTensor]:
 
 
 def space_to_pb(spec: dict[str, Any]) -> pb.Space:
-    """A spaces.space_to_spec dict as a protobuf Space."""
+    """A shared.space_to_spec dict as a protobuf Space."""
     if "dict" in spec:
         return pb.Space(
             dict=pb.DictSpace(entries=[pb.NamedSpace(name=k, space=space_to_pb(s)) for k, s in spec["dict"]])
@@ -80,8 +81,8 @@ def spec_pb(session: Session) -> pb.EnvSpec:
     return pb.EnvSpec(
         env_id=spec.env_id,
         num_envs=spec.num_envs,
-        observation_space=space_to_pb(spaces.space_to_spec(spec.observation_space)),
-        action_space=space_to_pb(spaces.space_to_spec(spec.action_space)),
+        observation_space=space_to_pb(shared.space_to_spec(spec.observation_space)),
+        action_space=space_to_pb(shared.space_to_spec(spec.action_space)),
         objectives=objectives_pb(spec.objectives),
         max_episode_steps=spec.max_episode_steps,
         autoreset_mode=int(spec.autoreset),

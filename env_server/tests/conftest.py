@@ -101,3 +101,13 @@ def rpc_error(call, *args, **kwargs) -> grpc.RpcError:
     with pytest.raises(grpc.RpcError) as info:
         call(*args, **kwargs)
     return info.value
+
+
+def read_addresses(path: str) -> list[str]:
+    """The addresses in an address file, as the agent reads it (comments and blank lines skipped)."""
+    try:
+        with open(path) as f:
+            lines = [line.strip() for line in f]
+    except FileNotFoundError:
+        return []
+    return [line for line in lines if line and not line.startswith("#")]

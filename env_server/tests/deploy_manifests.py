@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 
-from env_server import healthcheck
 from env_server.__main__ import _parser as server_parser
+from env_server.tools import healthcheck
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 K8S = ROOT / "deploy" / "k8s"
@@ -110,11 +110,11 @@ def env_server_of(objects: list[Manifest]) -> tuple[Manifest, Manifest, argparse
 
 def probe_args(probe: Manifest) -> argparse.Namespace:
     command = probe["exec"]["command"]
-    assert command[:3] == ["python", "-m", "env_server.healthcheck"], command
+    assert command[:3] == ["python", "-m", "env_server.tools.healthcheck"], command
     try:
         return healthcheck._parser().parse_args(command[3:])
     except SystemExit as exc:
-        raise AssertionError(f"env_server.healthcheck refuses the probe's args {command}") from exc
+        raise AssertionError(f"env_server.tools.healthcheck refuses the probe's args {command}") from exc
 
 
 # The agent's command line: main.rs, and the flags several subcommands share (cli/args.rs).

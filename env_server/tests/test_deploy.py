@@ -46,8 +46,8 @@ from deploy_manifests import (
     secret_key,
 )
 
-from env_server import devcerts, healthcheck
 from env_server.registry import Registry
+from env_server.tools import devcerts, healthcheck
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +124,7 @@ def test_server_resources_match_its_instance_and_worker_limits(server) -> None:
 
 
 def test_the_probe_command_answers_for_a_tls_server(tmp_path: pathlib.Path) -> None:
-    """env_server.healthcheck (the probes' command) against a real TLS server whose certificate
+    """env_server.tools.healthcheck (the probes' command) against a real TLS server whose certificate
     names the Service, as the env-server-tls Secret's does."""
     certs = devcerts.write_all(tmp_path, ["env-server", "127.0.0.1"], ["learner"])
     tls = ["--tls-cert", str(certs["server.pem"]), "--tls-key", str(certs["server.key"])]
@@ -311,7 +311,7 @@ def test_env_server_image_runs_the_server_and_its_probe() -> None:
     text = (DOCKER / "env_server.Dockerfile").read_text(encoding="utf-8")
     assert "maturin build --release --locked" in text
     assert 'ENTRYPOINT ["python", "-m", "env_server"]' in text
-    assert "env_server.healthcheck" in text  # imported at build time
+    assert "env_server.tools.healthcheck" in text  # imported at build time
     assert "USER 10001:10001" in text
 
 

@@ -1,4 +1,4 @@
-"""`python -m env_server.ray`: env servers as Ray actors, their address file, and their restarts.
+"""`python -m env_server.tools.ray`: env servers as Ray actors, their address file, and their restarts.
 
 The launcher runs as a real subprocess, against a local Ray it starts itself or against a
 two-node cluster this module makes with Ray's own test utility (`ray.cluster_utils.Cluster`,
@@ -6,7 +6,8 @@ both nodes on 127.0.0.1 in this machine), which lets a test remove a node. Each 
 that the address file lists exactly the servers that are up and that each one steps DST.
 The agent training over the launcher's servers is agent/tests/ray.rs; the sweep test here
 runs the agent binary ($AGENT_BIN, else target/debug/agent, else target/release/agent;
-skipped when none is built; scripts/test.sh builds it first).
+skipped when none is built; scripts/test.sh builds it first). The command line, the
+shards' argv and the address file without Ray are test_ray_command_line.py.
 """
 
 from __future__ import annotations
@@ -30,24 +31,14 @@ from collections.abc import Callable, Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from conftest import read_addresses  # noqa: E402
 
 from env_server.client import RemoteEnv  # noqa: E402
-from env_server.ray import sweep  # noqa: E402
-from env_server.ray.launcher import parse, write_address_file  # noqa: E402
+from env_server.tools.ray import sweep  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 UP = re.compile(r"server (\d+) (?:up|back) at (\S+) \(pid (\d+), node (\w+)\)")
-
-
-def read_addresses(path: str) -> list[str]:
-    """The addresses in an address file, as the agent reads it (comments and blank lines skipped)."""
-    try:
-        with open(path) as f:
-            lines = [line.strip() for line in f]
-    except FileNotFoundError:
-        return []
-    return [line for line in lines if line and not line.startswith("#")]
 
 
 def steps(address: str) -> None:
@@ -72,11 +63,11 @@ def wait_for(what: str, predicate: Callable[[], bool], timeout: float) -> float:
 
 
 class Launcher:
-    """`python -m env_server.ray` as a subprocess, its stderr collected line by line."""
+    """`python -m env_server.tools.ray` as a subprocess, its stderr collected line by line."""
 
     def __init__(self, *args: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "env_server.ray", *args],
+            [sys.executable, "-m", "env_server.tools.ray", *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -130,92 +121,6 @@ def pid_alive(pid: int) -> bool:
         return False
     with open(f"/proc/{pid}/stat") as f:  # a zombie has exited
         return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-
-
-# --- the command line, without Ray ---------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        (["--num-servers", "0"], "--num-servers: expected >= 1, got 0"),
-        (["--num-servers", "2", "--server-args", "--port 5000"], "other than --host, --port and --list"),
-        (["--num-servers", "2", "--server-args", "'unclosed"], "--server-args: expected a shell-quoted string"),
-        (["--num-servers", "2", "--"], "expected a COMMAND after '--'"),
-        (
-            ["--num-servers", "1", "--sweep-shards", "2", "--", "agent", "sweep", "--config", "s.toml"],
-            "--sweep-dir DIR",
-        ),
-        (
-            ["--num-servers", "1", "--sweep-dir", "d", "--", "agent", "sweep"],
-            "--sweep-dir: expected with --sweep-shards",
-        ),
-        (["--num-servers", "1", "--sweep-shards", "0", "--sweep-dir", "d"], "--sweep-shards: expected >= 1, got 0"),
-        (
-            ["--num-servers", "1", "--sweep-shards", "2", "--sweep-dir", "d", "--", "agent", "train"],
-            "agent sweep --config",
-        ),
-        (
-            [
-                "--num-servers",
-                "1",
-                "--sweep-shards",
-                "2",
-                "--sweep-dir",
-                "d",
-                "--",
-                "agent",
-                "sweep",
-                "--config=s",
-                "--dir",
-                "x",
-            ],
-            "expected no --dir in COMMAND",
-        ),
-    ],
-)
-def test_bad_flags_are_refused_naming_the_flag(argv, message, capsys):
-    with pytest.raises(SystemExit) as exc:
-        parse(argv)
-    assert exc.value.code == 2
-    assert message in capsys.readouterr().err
-
-
-def test_command_is_everything_after_the_first_separator():
-    opts = parse(["--num-servers", "2", "--server-args", "--max-sessions 8", "--", "agent", "train", "--", "x"])
-    assert opts.server_args == ["--max-sessions", "8"]
-    assert opts.command == ["agent", "train", "--", "x"]
-    assert parse(["--num-servers", "1"]).command == []
-
-
-def test_a_shard_starts_with_its_slice_and_resumes_with_the_folder_alone():
-    command = ["agent", "sweep", "--config", "s.toml", "--set", "seed=1", "--total-env-steps=9", "--device", "cpu"]
-    assert sweep.start_argv(command, 1, 3, "/d/shard-1-of-3") == [
-        *command,
-        "--shard",
-        "1/3",
-        "--dir",
-        "/d/shard-1-of-3",
-    ]
-    # A resume reads the sweep from its folder: the flags that made it go, the rest stay.
-    assert sweep.resume_argv(command, "/d/x") == ["agent", "sweep", "--resume", "/d/x", "--device", "cpu"]
-    assert sweep.report_argv(command, ["/a", "/b"], "/d/front") == [
-        "agent", "sweep", "--report", "/a", "/b", "--dir", "/d/front",
-    ]  # fmt: skip
-    assert sweep.absolute(["bin/agent", "sweep", "--config", "s.toml"])[::3] == [
-        os.path.abspath("bin/agent"),
-        os.path.abspath("s.toml"),
-    ]
-
-
-def test_the_address_file_is_replaced_whole(tmp_path):
-    path = str(tmp_path / "servers.txt")
-    write_address_file(path, ["127.0.0.1:1", "127.0.0.1:2"], 3)
-    assert read_addresses(path) == ["127.0.0.1:1", "127.0.0.1:2"]
-    assert open(path).readline() == "# env servers from python -m env_server.ray: 2 of 3 up\n"
-    write_address_file(path, [], 3)
-    assert read_addresses(path) == []
-    assert os.listdir(tmp_path) == ["servers.txt"]  # no temporary file left behind
 
 
 # --- a local Ray started by the launcher ---------------------------------------------------------

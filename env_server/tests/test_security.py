@@ -1,6 +1,6 @@
 """TLS, bearer tokens and session owners, through both fronts.
 
-The CA, certificates and tokens are made at run time by env_server.devcerts into a
+The CA, certificates and tokens are made at run time by env_server.tools.devcerts into a
 temporary directory; no key is committed.
 """
 
@@ -17,7 +17,7 @@ import pytest
 from conftest import FRONTS, running_server, server_env
 from grpc_health.v1 import health_pb2, health_pb2_grpc
 
-from env_server import devcerts, security
+from env_server import security
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
 from env_server.client import (
@@ -28,6 +28,7 @@ from env_server.client import (
     read_token_file,
     to_tensor,
 )
+from env_server.tools import devcerts
 
 
 @pytest.fixture(scope="module")

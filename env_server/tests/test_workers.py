@@ -13,9 +13,10 @@ from conftest import make, rpc_error, running_server, step
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server._proto.mo_env.v1 import env_pb2_grpc
+from env_server.construction import make_session
 from env_server.errors import InvalidArgument, SimulatorError
 from env_server.registry import Registry
-from env_server.session import Autoreset, make_session
+from env_server.session import Autoreset
 
 
 def _trajectory(num_workers: int, autoreset: Autoreset, steps: int = 40) -> list[object]:

@@ -1,4 +1,5 @@
-"""The shipped environments: one line per env id, sorted. Add a file here and a line below.
+"""The shipped environments: one line per env id, sorted. Add a file here, a line below
+and the id in `shared.SHIPPED_ENV_IDS` (the client's copy, which imports no env).
 
 Each file's docstring documents its task with `## Observation`, `## Action` and
 `## Reward Space` sections (the convention is explained in env_server/task.py).

@@ -8,7 +8,7 @@ reward_type "comic", termination error threshold 0.3, reference frames for the n
 
 Clips: `clip_path` is an HDF5 file in dm_control's mocap format. By default it is the
 package's `env_server/mocap/clips/synthetic_lying.h5`: SYNTHETIC physics rollouts of the
-same humanoid recorded by `env_server/mocap/make_clips.py`, NOT CMU motion capture data (the
+same humanoid recorded by `env_server/tools/make_clips.py`, NOT CMU motion capture data (the
 CMU database cannot be downloaded on our machines). With the real database, pass
 `clip_path="/path/to/cmu_2020_dfe3e9e0.h5"` and `clip_ids=[...]` (for example the ids of
 dm_control's `cmu_subsets.LOCOMOTION_SMALL`). dm_control 1.0.28's loader needs a protobuf-7

@@ -1,7 +1,7 @@
 """Mocap clip support for humanoid-mocap: the dm_control loader fix and clip I/O.
 
 The shipped clips (`clips/synthetic_lying.h5`) are SYNTHETIC: physics rollouts of
-dm_control's CMU humanoid, recorded by `make_clips.py`. They are NOT CMU motion capture
+dm_control's CMU humanoid, recorded by `env_server/tools/make_clips.py`. They are NOT CMU motion capture
 data. To track the real CMU database, download dm_control's `cmu_2020_*.h5` (it cannot be
 downloaded on the build machines) and pass `clip_path=...` (and `clip_ids=...`) to the task.
 """

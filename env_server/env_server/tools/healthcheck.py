@@ -1,4 +1,4 @@
-"""`python -m env_server.healthcheck`: ask a server's grpc.health.v1 service whether it is SERVING.
+"""`python -m env_server.tools.healthcheck`: ask a server's grpc.health.v1 service whether it is SERVING.
 
 Exit status 0 when it answers SERVING, 1 otherwise (with the reason on stderr), so it can be a
 container probe (`deploy/k8s`) or a Docker HEALTHCHECK. Kubernetes' built-in `grpc:` probe
@@ -6,7 +6,7 @@ cannot speak TLS, and a server bound to a non-loopback address serves TLS (docs/
 other hosts"); this check does, with the CA that signed the server and the name its
 certificate carries. The health service needs no bearer token.
 
-    python -m env_server.healthcheck --port 50051 --tls-ca /etc/env-server/tls/ca.crt --server-name env-server
+    python -m env_server.tools.healthcheck --port 50051 --tls-ca /etc/env-server/tls/ca.crt --server-name env-server
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m env_server.healthcheck", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m env_server.tools.healthcheck", description=__doc__.splitlines()[0])
     p.add_argument("--host", default="127.0.0.1", help="server address (default 127.0.0.1)")
     p.add_argument("--port", type=int, required=True, help="server port")
     p.add_argument("--service", default="", help="service name to ask about (default '': the whole server)")

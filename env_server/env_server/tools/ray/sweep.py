@@ -1,4 +1,4 @@
-"""`python -m env_server.ray --sweep-shards S --sweep-dir DIR -- agent sweep --config C`: a sweep's shards as Ray tasks.
+"""`python -m env_server.tools.ray --sweep-shards S --sweep-dir DIR -- agent sweep --config C`: a sweep's shards as Ray tasks.
 
 Shard I of S is one Ray task that runs `agent sweep --config C --shard I/S --dir
 DIR/shard-I-of-S --server file:PATH` against the launcher's servers. Ray retries a task whose

@@ -1,6 +1,6 @@
 """In-process throughput of a Session: the server's per-Step work minus gRPC.
 
-    python -m env_server.bench_inprocess --env humanoid-run --num-envs 8 --steps 2000 --seed 0
+    python -m env_server.tools.bench_inprocess --env humanoid-run --num-envs 8 --steps 2000 --seed 0
 
 Runs `--steps` batch Steps of `--num-envs` instances through Session.step (the same
 validation, autoreset and episode accounting the server runs, fed the same raw bytes a
@@ -23,8 +23,8 @@ import time
 import gymnasium
 import numpy as np
 
+from env_server.construction import make_session
 from env_server.registry import Registry
-from env_server.session import make_session
 
 
 def random_actions(space: gymnasium.spaces.Space, steps: int, num_envs: int, seed: int) -> np.ndarray:
@@ -77,7 +77,7 @@ def run(env_id: str, num_envs: int, steps: int, seed: int, raw: bool = False) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m env_server.bench_inprocess", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m env_server.tools.bench_inprocess", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="humanoid-run", help="env id (default humanoid-run)")
     p.add_argument("--num-envs", type=int, default=8, help="instances per Step (default 8)")
     p.add_argument("--steps", type=int, default=2000, help="batch Steps to time (default 2000)")

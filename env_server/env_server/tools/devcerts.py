@@ -1,6 +1,6 @@
 """Throwaway TLS material and tokens, for tests and for trying TLS out (the example in docs/scaling-out.md).
 
-    python -m env_server.devcerts --out certs --host 127.0.0.1 --host localhost --client learner
+    python -m env_server.tools.devcerts --out certs --host 127.0.0.1 --host localhost --client learner
 
 writes into `certs/`: `ca.pem` (a fresh CA) and `ca.key`, `server.pem` / `server.key` (valid
 for every --host, as DNS name or IP address), `client.pem` / `client.key` (a client
@@ -147,7 +147,7 @@ def write_all(out: pathlib.Path, hosts: Sequence[str], clients: Sequence[str]) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m env_server.devcerts", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m env_server.tools.devcerts", description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, help="directory to write into (created if missing)")
     p.add_argument(
         "--host", action="append", help="name or IP address the server certificate is valid for (repeatable)"

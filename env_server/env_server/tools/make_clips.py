@@ -1,6 +1,6 @@
 """Generate the shipped SYNTHETIC mocap clips (not CMU data): physics rollouts of the CMU humanoid.
 
-    python -m env_server.mocap.make_clips [--out PATH]
+    python -m env_server.tools.make_clips [--out PATH]
 
 1. A kinematic bootstrap clip (the humanoid lying still on the floor in the zero pose; a
    position-controlled humanoid without a balance controller cannot stand, it collapses)

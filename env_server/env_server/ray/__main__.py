@@ -1,8 +1,0 @@
-"""`python -m env_server.ray`: the Ray launcher's entry point (the code is in launcher.py)."""
-
-import sys
-
-from env_server.ray.launcher import main
-
-if __name__ == "__main__":
-    sys.exit(main())
