@@ -43,6 +43,7 @@ from gymnasium.vector.utils import batch_space, create_empty_array
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import (
     Channel,
+    Credentials,
     FailedPreconditionError,
     InvalidArgumentError,
     NotFoundError,
@@ -87,7 +88,7 @@ _FROM_GYM = {mode: autoreset for autoreset, mode in _TO_GYM.items()}
 def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Objective, ...]]]:
     """(env_id, description, objectives) for every env the server lists; `connection`
     takes the TLS and token keywords of the module doc."""
-    channel = Channel(address, **connection)
+    channel = Channel(address, credentials=Credentials(**connection))
     try:
         response = channel.call(channel.stub.ListEnvs, pb.ListEnvsRequest())
     finally:
@@ -225,11 +226,7 @@ class RemoteVectorEnv(gymnasium.vector.VectorEnv):
             info_keys=info_keys,
             num_workers=num_workers,
             max_message_mb=max_message_mb,
-            tls_ca=tls_ca,
-            tls_client_cert=tls_client_cert,
-            tls_client_key=tls_client_key,
-            token=token,
-            token_file=token_file,
+            credentials=Credentials(tls_ca, tls_client_cert, tls_client_key, token, token_file),
             kwargs=kwargs,
         )
         spec = self.session_spec = self._session.spec

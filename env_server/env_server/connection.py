@@ -5,6 +5,7 @@ the errors). TLS and tokens live here and in the fronts, never in the service (d
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pathlib
 import queue
@@ -78,6 +79,18 @@ def read_token_file(path: PathLike) -> str:
     return entries[0][1]
 
 
+@dataclasses.dataclass(frozen=True)
+class Credentials:
+    """How to reach a server that takes TLS or a bearer token: the client's TLS and token
+    keywords (env_server.client's module doc), carried as one value to the channel."""
+
+    tls_ca: PathLike | None = None
+    tls_client_cert: PathLike | None = None
+    tls_client_key: PathLike | None = None
+    token: str | None = None
+    token_file: PathLike | None = None
+
+
 class Channel:
     """A channel (plain or TLS), its stub, the token and the retry rule (UNAVAILABLE only)."""
 
@@ -87,37 +100,33 @@ class Channel:
         max_message_mb: float = 64,
         retries: int = 5,
         *,
-        tls_ca: PathLike | None = None,
-        tls_client_cert: PathLike | None = None,
-        tls_client_key: PathLike | None = None,
-        token: str | None = None,
-        token_file: PathLike | None = None,
+        credentials: Credentials = Credentials(),
     ) -> None:
+        c = credentials
         size = int(max_message_mb * 1024 * 1024)
         options = [("grpc.max_send_message_length", size), ("grpc.max_receive_message_length", size)]
-        if (tls_client_cert is None) != (tls_client_key is None):
+        if (c.tls_client_cert is None) != (c.tls_client_key is None):
             raise ValueError("tls_client_cert, tls_client_key: expected both or neither, got one")
-        if token is not None and token_file is not None:
+        if c.token is not None and c.token_file is not None:
             raise ValueError("token, token_file: expected at most one, got both")
         # http:// and https:// choose the transport; any other target (host:port,
         # unix:...) goes to grpc as it is.
         scheme, sep, target = address.partition("://")
         if not sep or scheme not in ("http", "https"):
             scheme, target = "", address
-        implied = tls_ca is not None or tls_client_cert is not None
+        implied = c.tls_ca is not None or c.tls_client_cert is not None
         if scheme == "http" and implied:
             raise ValueError(f"address: expected host:port or https://... with TLS files, got {address!r}")
         if scheme == "https" or (scheme == "" and implied):
-            credentials = grpc.ssl_channel_credentials(
-                root_certificates=_read(tls_ca),
-                private_key=_read(tls_client_key),
-                certificate_chain=_read(tls_client_cert),
+            tls = grpc.ssl_channel_credentials(
+                root_certificates=_read(c.tls_ca),
+                private_key=_read(c.tls_client_key),
+                certificate_chain=_read(c.tls_client_cert),
             )
-            self.channel = grpc.secure_channel(target, credentials, options=options)
+            self.channel = grpc.secure_channel(target, tls, options=options)
         else:
             self.channel = grpc.insecure_channel(target, options=options)
-        if token_file is not None:
-            token = read_token_file(token_file)
+        token = c.token if c.token_file is None else read_token_file(c.token_file)
         # Sent as call metadata rather than call credentials, which grpc allows only over
         # TLS: a token on a plaintext loopback connection is legitimate (no --tls-cert).
         self.metadata = () if token is None else (("authorization", f"Bearer {token}"),)

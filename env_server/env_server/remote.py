@@ -17,7 +17,7 @@ import grpc
 import numpy as np
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
-from env_server.connection import Channel, NotFoundError, PathLike, RemoteError, Stream
+from env_server.connection import Channel, Credentials, NotFoundError, RemoteError, Stream
 from env_server.shared import Autoreset, ClosedForm, Objective, SessionSpec, leaf_dtype, spec_to_space
 
 _PB_TO_DTYPE = {
@@ -119,22 +119,10 @@ class RemoteSession:
         info_keys: Sequence[str],
         num_workers: int,
         max_message_mb: float,
-        tls_ca: PathLike | None,
-        tls_client_cert: PathLike | None,
-        tls_client_key: PathLike | None,
-        token: str | None,
-        token_file: PathLike | None,
+        credentials: Credentials,
         kwargs: dict[str, Any],
     ) -> None:
-        self._channel = Channel(
-            address,
-            max_message_mb,
-            tls_ca=tls_ca,
-            tls_client_cert=tls_client_cert,
-            tls_client_key=tls_client_key,
-            token=token,
-            token_file=token_file,
-        )
+        self._channel = Channel(address, max_message_mb, credentials=credentials)
         request = pb.MakeRequest(
             env_id=env_id,
             num_envs=num_envs,
