@@ -1,7 +1,7 @@
 //! The learner's input: B trajectory snippets of T steps (T = Retrace length, C.2).
 //!
-//! Shape legend: T snippet length, B snippets, O observation size, D action dims,
-//! K env reward columns.
+//! Shape legend: P members, T snippet length, B snippets, O observation size, D action
+//! dims, K env reward columns, C critic heads.
 
 use crate::core::nets::ActionKind;
 use tch::{Device, Kind, Tensor};

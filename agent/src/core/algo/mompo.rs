@@ -29,8 +29,9 @@
 //! (s, ε_g), and the E-step solves eq. 34 per grid point with that point's eta_g.
 //! The M-step's trust region (alpha) is shared by all grid points.
 //!
-//! Shape legend: T snippet length, B snippets, N = (T+1)B states, M samples, D action
-//! dims, A discrete actions, K objectives, C critics.
+//! Shape legend: P members, T snippet length, B snippets, N = (T+1)B states (R: the
+//! real ones), O observation size, M samples, D action dims, A discrete actions, K
+//! objectives, C critics.
 
 use super::batch::{SnippetBatch, StepShape};
 use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};

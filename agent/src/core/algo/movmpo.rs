@@ -34,8 +34,9 @@
 //! minibatches from its own stream, so member p computes what a learner of its config
 //! alone computes on the same batches.
 //!
-//! Shape legend: P members, T unroll length, B unrolls, N = TB pairs, D action dims, A
-//! discrete actions, K objectives, C critics.
+//! Shape legend: P members, T unroll length, B unrolls, N = TB pairs (R: the widest
+//! member's real ones), O observation size, D action dims, A discrete actions, K
+//! objectives, C critics.
 
 use super::batch::{SnippetBatch, StepShape};
 use super::estep::StateMean;
