@@ -1,7 +1,7 @@
 //! The learner's input: B trajectory snippets of T steps (T = Retrace length, C.2).
 //!
-//! Shape legend: T snippet length, B snippets, O observation size, D action dims,
-//! K env reward columns.
+//! Shape legend: P members, T snippet length, B snippets, O observation size, D action
+//! dims, K env reward columns, C critic heads.
 
 use crate::core::nets::ActionKind;
 use tch::{Device, Kind, Tensor};
@@ -21,6 +21,43 @@ pub struct SnippetBatch {
     pub behaviour_log_probs: Tensor,
     /// `[T, B]` f32: 1 for real transitions, 0 for padding after an episode's end.
     pub valid: Tensor,
+}
+
+/// The sizes of the members' batches stacked member-first (`[P, T+1, B, ..]`) and of
+/// the learner's critic heads: what a step's tensors are reshaped by.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct StepShape {
+    /// P members.
+    pub(crate) members: i64,
+    /// T steps per snippet (unroll).
+    pub(crate) t_len: i64,
+    /// B snippets (unrolls) per member.
+    pub(crate) b: i64,
+    /// C critic heads.
+    pub(crate) heads: i64,
+}
+
+impl StepShape {
+    /// The shape of `stacked`, a member-first batch, for `heads` critic heads.
+    pub(crate) fn of(stacked: &SnippetBatch, heads: i64) -> Self {
+        let size = stacked.observations.size();
+        Self {
+            members: size[0],
+            t_len: size[1] - 1,
+            b: size[2],
+            heads,
+        }
+    }
+
+    /// (T+1)B states: every snippet's T states acted from and its last one.
+    pub(crate) fn states(&self) -> i64 {
+        (self.t_len + 1) * self.b
+    }
+
+    /// TB taken (state, action) pairs.
+    pub(crate) fn pairs(&self) -> i64 {
+        self.t_len * self.b
+    }
 }
 
 /// A batch whose shapes or dtypes do not match the learner.

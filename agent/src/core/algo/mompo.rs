@@ -29,22 +29,99 @@
 //! (s, ε_g), and the E-step solves eq. 34 per grid point with that point's eta_g.
 //! The M-step's trust region (alpha) is shared by all grid points.
 //!
-//! Shape legend: T snippet length, B snippets, N = (T+1)B states, M samples, D action
-//! dims, A discrete actions, K objectives, C critics.
+//! Shape legend: P members, T snippet length, B snippets, N = (T+1)B states (R: the
+//! real ones), O observation size, M samples, D action dims, A discrete actions, K
+//! objectives, C critics.
 
-use super::batch::SnippetBatch;
+use super::batch::{SnippetBatch, StepShape};
 use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};
 use super::objectives::{QSource, action_norm_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
 use super::projection::{Bounds, kl_ratio, project};
 use super::real_states::{gather_states, masked_half_mse, real_states};
 use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
-use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
-use super::update::StepMeasures;
-use crate::core::nets::{ActionKind, PolicyOutput};
+use super::state::{Critics, Learner, LearnerError, LearnerStats, to_vec};
+use super::update::{PhaseClock, StepMeasures};
+use crate::core::nets::{ActionKind, MultiCritic, PolicyOutput};
 use crate::core::random::Purpose;
-use std::time::Instant;
 use tch::{Kind, Tensor};
+
+/// The target networks at every state: pi_old there, its M sampled actions (all A
+/// actions, categorical) scored by the target critic, and V(s) from those scores.
+struct TargetSamples {
+    /// `[P, N, O]`: the states.
+    obs: Tensor,
+    /// pi_old at the N states.
+    policy: PolicyOutput,
+    /// `[P, M, N, D]` sampled actions, or `[P, A, N]` every action's index.
+    actions: Tensor,
+    /// `[P, M, N, C]` (`[P, A, N, C]`): Q' of `actions`.
+    q: Tensor,
+    /// `[P, N, C]`: the mean of `q` over the samples (pi_old-weighted, categorical).
+    v: Tensor,
+    /// `[P, A, N]`: log pi_old of every action (categorical only, for the exact E-step).
+    log_prior: Option<Tensor>,
+}
+
+impl TargetSamples {
+    /// Each member's states at its own rows, `index [P, R]`.
+    fn member_rows(self, index: &Tensor) -> Self {
+        Self {
+            obs: gather_states(&self.obs, index, 1),
+            policy: self.policy.member_rows(index),
+            actions: gather_states(&self.actions, index, 2),
+            q: gather_states(&self.q, index, 2),
+            v: gather_states(&self.v, index, 1),
+            log_prior: self.log_prior.map(|lp| gather_states(&lp, index, 2)),
+        }
+    }
+}
+
+/// The MO-MPO critics.
+struct QCritics<'a> {
+    online: &'a MultiCritic,
+    target: &'a MultiCritic,
+}
+
+/// What the E- and M-steps work on: the states the policy is fitted at, pi_old and
+/// its samples there with their Q_k, and how each member averages over the states.
+struct Improvement {
+    /// `[P, N, O]`.
+    obs: Tensor,
+    /// pi_old at `obs`.
+    target: PolicyOutput,
+    /// `[P, M, N, D]` sampled actions, or `[P, A, N]` every action's index.
+    actions: Tensor,
+    /// `[P, M, N, K]` (`[P, A, N, K]`): Q_k of `actions` (`estep_q`).
+    q: Tensor,
+    /// `[P, A, N]`: log pi_old of every action (categorical only).
+    log_prior: Option<Tensor>,
+    /// Each state's grid point (an ε-conditioned learner, one member).
+    preferences: Option<StatePreferences>,
+    /// `[P, N]`: each member's weight of each state (unconditioned learners).
+    state_weight: Tensor,
+}
+
+impl Improvement {
+    /// How the E-step's duals average over the states: per grid point when
+    /// ε-conditioned, else per member.
+    fn states(&self) -> StateMean<'_> {
+        match &self.preferences {
+            Some(p) => StateMean::PerGridPoint(&p.state_weight),
+            None => StateMean::Members(&self.state_weight),
+        }
+    }
+
+    /// How the M-step averages over the states. One alpha is shared by all grid points
+    /// (module docs), so a conditioned learner's trust region averages over all of
+    /// its states rather than per grid point.
+    fn fit_states(&self) -> StateMean<'_> {
+        match self.preferences {
+            Some(_) => StateMean::Uniform,
+            None => self.states(),
+        }
+    }
+}
 
 impl Learner {
     /// Q-values for the E-step, `[.., M, N, K]`, from critic heads and closed forms.
@@ -67,163 +144,230 @@ impl Learner {
         &mut self,
         batches: &[SnippetBatch],
     ) -> Result<Vec<LearnerStats>, LearnerError> {
-        let start = Instant::now();
-        let p = self.members.count();
-        let (t_len, b) = (batches[0].len(), batches[0].batch_size());
-        let n = (t_len + 1) * b;
-        let (batch, preferences) = self.stack_batches(batches, t_len);
-        let obs_all = batch.observations.reshape([p, n, -1]);
-        let obs_taken = obs_all.narrow(1, 0, t_len * b);
-        let act_taken = batch.actions.flatten(1, 2);
-        let heads = self.bound.critic_names.len() as i64;
-        let noise = match self.dims.action {
-            ActionKind::Continuous { dim } => {
-                Some(self.member_noise(&[self.cfg.mpo.num_samples, n, dim])?)
-            }
-            ActionKind::Discrete { .. } => None,
-        };
-        let Critics::Q {
-            online: critic,
-            target: target_critic,
-            ..
-        } = &self.critics
-        else {
-            unreachable!("MPO learners are built with Q critics")
-        };
+        let mut clock = PhaseClock::start(self.device);
+        let (batch, preferences) = self.stack_batches(batches, batches[0].len());
+        let shape = StepShape::of(&batch, self.bound.critic_names.len() as i64);
+        let obs = batch
+            .observations
+            .reshape([shape.members, shape.states(), -1]);
+        let noise = self.sampling_noise(shape.states())?;
 
         // 1. Policy evaluation with Retrace (C.2).
-        let eval = tch::no_grad(|| {
-            let target_out = self.target_policy.forward_members(&obs_all, None);
-            let (samples, critic_q, v_all, log_prior) = match &target_out {
-                PolicyOutput::Gaussian(g) => {
-                    let noise = noise
-                        .as_ref()
-                        .expect("Gaussian policies have continuous actions");
-                    let samples = g.mean.unsqueeze(1) + noise * g.std.unsqueeze(1);
-                    let q = target_critic.forward_samples_members(&obs_all, &samples);
-                    let v = q.mean_dim(1, false, Kind::Float);
-                    (samples, q, v, None)
-                }
-                PolicyOutput::Categorical(logits) => {
-                    let q = target_critic.forward_all_actions_members(&obs_all);
-                    let log_prior = logits.log_softmax(-1, Kind::Float).transpose(1, 2);
-                    let v =
-                        (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(1, false, Kind::Float);
-                    let a = logits.size()[2];
-                    let all = Tensor::arange(a, (Kind::Int64, self.device))
-                        .reshape([1, a, 1])
-                        .expand([p, a, n], false);
-                    (all, q, v, Some(log_prior))
-                }
-            };
-            let v_next = v_all.reshape([p, t_len + 1, b, heads]).narrow(1, 1, t_len);
-            let q_taken = match &log_prior {
-                // Every action's Q is scored already: the taken ones are a gather.
-                Some(_) => {
-                    let index = act_taken
-                        .reshape([p, 1, t_len * b, 1])
-                        .expand([p, 1, t_len * b, heads], false);
-                    critic_q
-                        .narrow(2, 0, t_len * b)
-                        .gather(1, &index, false)
-                        .squeeze_dim(1)
-                }
-                None => target_critic.forward_members(&obs_taken, &act_taken),
-            }
-            .reshape([p, t_len, b, heads]);
-            let target_log_probs = target_out
-                .narrow_states(t_len * b)
-                .log_prob(&act_taken)
-                .reshape([p, t_len, b]);
-            // c = 0 at padding cuts the trace exactly (PAD_LOG_PROB alone leaves ~e^-60).
-            let importance =
-                importance_weights(&target_log_probs, &batch.behaviour_log_probs) * &batch.valid;
-            // Retrace runs along time: members join the batch axis.
-            let time_first = |t: &Tensor| t.transpose(0, 1);
-            let targets = retrace_targets(&RetraceInputs {
-                q_taken: &time_first(&q_taken),
-                v_next: &time_first(&v_next),
-                rewards: &time_first(&self.critic_rewards(&batch.rewards)),
-                discounts: &time_first(&batch.discounts),
-                importance: &time_first(&importance),
-                gamma: self.cfg.mpo.discount,
-            });
-            (
-                target_out,
-                samples,
-                critic_q,
-                log_prior,
-                time_first(&targets).reshape([p, t_len * b, heads]),
-            )
-        });
-        let (target_out, samples, critic_q, log_prior, targets) = eval;
-        let q_online = critic.forward_members(&obs_taken, &act_taken);
-        let per_head =
-            masked_half_mse(&(q_online - &targets), &batch.valid.reshape([p, t_len * b]));
-        self.update_critics(&per_head.sum(Kind::Float));
-        let policy_evaluation_ms = ms_since(start, self.device);
+        let target = tch::no_grad(|| self.sample_target(obs, noise.as_ref()));
+        let critic_loss = self.regress_critics(&batch, &target, shape);
+        clock.policy_evaluation_done();
 
-        // The E- and M-steps see only real states (all of them, in most batches).
-        let real = real_states(&batch.valid, &batch.discounts);
-        let preferences = match (&real.index, preferences) {
-            (Some(index), Some(pr)) => Some(pr.rows(&index.get(0), &self.conditioned_epsilon())),
-            (_, pr) => pr,
-        };
-        let (obs_real, target_out, samples, critic_q, log_prior) = match &real.index {
-            None => (obs_all, target_out, samples, critic_q, log_prior),
-            Some(index) => (
-                gather_states(&obs_all, index, 1),
-                target_out.member_rows(index),
-                gather_states(&samples, index, 2),
-                gather_states(&critic_q, index, 2),
-                log_prior.map(|lp| gather_states(&lp, index, 2)),
-            ),
-        };
-        let states = match &preferences {
-            Some(pr) => StateMean::PerGridPoint(&pr.state_weight),
-            None => StateMean::Members(&real.weight),
-        };
+        // 2. E-step (eqs. 32-34), on the real states only (all of them, in most batches).
+        let fit = self.at_real_states(&batch, target, preferences);
+        let estep = self.estep(&fit);
+        clock.e_step_done();
 
-        // 2. E-step (eqs. 32-34).
-        let start = Instant::now();
-        let q = self.estep_q(&critic_q, &samples);
-        let estep = self.estep(&q, log_prior.as_ref(), preferences.as_ref(), states);
-        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
-        let e_step_ms = ms_since(start, self.device);
-
-        // 3. M-step (eqs. 16-20) and dual updates. A conditioned learner's M-step
-        // averages over all its states.
-        let start = Instant::now();
-        let online_out = self.policy.forward_members(&obs_real, None);
-        let fit_states = match preferences {
-            Some(_) => StateMean::Uniform,
-            None => states,
-        };
-        let policy_kl = self.fit_policy(
-            &online_out,
-            &target_out,
-            &samples,
-            &weights,
-            &estep.temperature_loss,
-            fit_states,
-        );
-        self.project_policy(&obs_real, &target_out, fit_states);
-        let m_step_ms = ms_since(start, self.device);
+        // 3. M-step (eqs. 16-20) and dual updates, then the trust region's projection.
+        let policy_kl = self.fit_improved(&fit, &estep);
+        self.project_policy(&fit.obs, &fit.target, fit.fit_states());
+        clock.m_step_done();
 
         // 4. Target networks.
-        let value_mean = states.over_states(&q.mean_dim(1, false, Kind::Float));
+        let value_mean = fit
+            .states()
+            .over_states(&fit.q.mean_dim(1, false, Kind::Float));
         self.finish_members(StepMeasures {
-            critic_loss: per_head,
+            critic_loss,
             estep_kl: estep.kl,
             value_mean,
             policy_kl,
-            timings: PhaseTimings {
-                policy_evaluation_ms,
-                e_step_ms,
-                m_step_ms,
-                target_update_ms: 0.0,
-            },
+            timings: clock.timings(),
         })
+    }
+
+    /// The online and target Q critics.
+    fn q_critics(&self) -> QCritics<'_> {
+        let Critics::Q { online, target, .. } = &self.critics else {
+            unreachable!("MPO learners are built with Q critics")
+        };
+        QCritics { online, target }
+    }
+
+    /// Every member's Gaussian sampling noise for `n` states, `[P, M, n, D]`; none for
+    /// categorical policies, whose E-step sums over all actions.
+    fn sampling_noise(&mut self, n: i64) -> Result<Option<Tensor>, LearnerError> {
+        match self.dims.action {
+            ActionKind::Continuous { dim } => Ok(Some(self.member_noise(&[
+                self.cfg.mpo.num_samples,
+                n,
+                dim,
+            ])?)),
+            ActionKind::Discrete { .. } => Ok(None),
+        }
+    }
+
+    /// pi_old's samples at every state `obs [P, N, O]` and the target critic's scores
+    /// of them (C.2, eq. 15): Gaussian samples from `noise`, or every discrete action.
+    fn sample_target(&self, obs: Tensor, noise: Option<&Tensor>) -> TargetSamples {
+        let critic = self.q_critics().target;
+        let policy = self.target_policy.forward_members(&obs, None);
+        match &policy {
+            PolicyOutput::Gaussian(g) => {
+                let noise = noise.expect("Gaussian policies have continuous actions");
+                let actions = g.mean.unsqueeze(1) + noise * g.std.unsqueeze(1);
+                let q = critic.forward_samples_members(&obs, &actions);
+                let v = q.mean_dim(1, false, Kind::Float);
+                TargetSamples {
+                    obs,
+                    policy,
+                    actions,
+                    q,
+                    v,
+                    log_prior: None,
+                }
+            }
+            PolicyOutput::Categorical(logits) => {
+                let q = critic.forward_all_actions_members(&obs);
+                let log_prior = logits.log_softmax(-1, Kind::Float).transpose(1, 2);
+                let v = (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(1, false, Kind::Float);
+                let size = logits.size();
+                let (p, n, a) = (size[0], size[1], size[2]);
+                let actions = Tensor::arange(a, (Kind::Int64, self.device))
+                    .reshape([1, a, 1])
+                    .expand([p, a, n], false);
+                TargetSamples {
+                    obs,
+                    policy,
+                    actions,
+                    q,
+                    v,
+                    log_prior: Some(log_prior),
+                }
+            }
+        }
+    }
+
+    /// Regresses the online critics on the Retrace targets of the taken pairs (0.5 *
+    /// squared error, mean over real pairs, summed over heads), one Adam step.
+    /// Returns each member's loss per head, `[P, C]`.
+    fn regress_critics(
+        &mut self,
+        batch: &SnippetBatch,
+        target: &TargetSamples,
+        shape: StepShape,
+    ) -> Tensor {
+        let (p, pairs) = (shape.members, shape.pairs());
+        let obs_taken = target.obs.narrow(1, 0, pairs);
+        let act_taken = batch.actions.flatten(1, 2);
+        let targets = tch::no_grad(|| self.retrace(batch, &obs_taken, &act_taken, target, shape));
+        let q_online = self
+            .q_critics()
+            .online
+            .forward_members(&obs_taken, &act_taken);
+        let per_head = masked_half_mse(&(q_online - &targets), &batch.valid.reshape([p, pairs]));
+        self.update_critics(&per_head.sum(Kind::Float));
+        per_head
+    }
+
+    /// Retrace targets (C.2, eq. 15) of the taken pairs, `[P, TB, C]`: the target
+    /// critic, the target policy's log-probabilities and c = min(1, pi_old/b).
+    fn retrace(
+        &self,
+        batch: &SnippetBatch,
+        obs_taken: &Tensor,
+        act_taken: &Tensor,
+        target: &TargetSamples,
+        shape: StepShape,
+    ) -> Tensor {
+        let (p, t_len, b, heads) = (shape.members, shape.t_len, shape.b, shape.heads);
+        let pairs = shape.pairs();
+        let v_next = target
+            .v
+            .reshape([p, t_len + 1, b, heads])
+            .narrow(1, 1, t_len);
+        let q_taken = match &target.log_prior {
+            // Every action's Q is scored already: the taken ones are a gather.
+            Some(_) => {
+                let index = act_taken
+                    .reshape([p, 1, pairs, 1])
+                    .expand([p, 1, pairs, heads], false);
+                target
+                    .q
+                    .narrow(2, 0, pairs)
+                    .gather(1, &index, false)
+                    .squeeze_dim(1)
+            }
+            None => self
+                .q_critics()
+                .target
+                .forward_members(obs_taken, act_taken),
+        }
+        .reshape([p, t_len, b, heads]);
+        let target_log_probs = target
+            .policy
+            .narrow_states(pairs)
+            .log_prob(act_taken)
+            .reshape([p, t_len, b]);
+        // c = 0 at padding cuts the trace exactly (PAD_LOG_PROB alone leaves ~e^-60).
+        let importance =
+            importance_weights(&target_log_probs, &batch.behaviour_log_probs) * &batch.valid;
+        // Retrace runs along time: members join the batch axis.
+        let time_first = |t: &Tensor| t.transpose(0, 1);
+        let targets = retrace_targets(&RetraceInputs {
+            q_taken: &time_first(&q_taken),
+            v_next: &time_first(&v_next),
+            rewards: &time_first(&self.critic_rewards(&batch.rewards)),
+            discounts: &time_first(&batch.discounts),
+            importance: &time_first(&importance),
+            gamma: self.cfg.mpo.discount,
+        });
+        time_first(&targets).reshape([p, pairs, heads])
+    }
+
+    /// The E- and M-steps' inputs at the real states: the states acted from and those
+    /// bootstrapped into from a real, non-terminal step. Padding and terminal
+    /// observations are never acted from, so no policy is fitted there.
+    fn at_real_states(
+        &self,
+        batch: &SnippetBatch,
+        target: TargetSamples,
+        preferences: Option<StatePreferences>,
+    ) -> Improvement {
+        let real = real_states(&batch.valid, &batch.discounts);
+        let Some(index) = &real.index else {
+            return self.improvement(target, preferences, real.weight);
+        };
+        let preferences = preferences.map(|pr| pr.rows(&index.get(0), &self.conditioned_epsilon()));
+        self.improvement(target.member_rows(index), preferences, real.weight)
+    }
+
+    /// The E- and M-steps' inputs at the states of `target`.
+    fn improvement(
+        &self,
+        target: TargetSamples,
+        preferences: Option<StatePreferences>,
+        state_weight: Tensor,
+    ) -> Improvement {
+        Improvement {
+            q: self.estep_q(&target.q, &target.actions),
+            obs: target.obs,
+            target: target.policy,
+            actions: target.actions,
+            log_prior: target.log_prior,
+            preferences,
+            state_weight,
+        }
+    }
+
+    /// The M-step (eqs. 16-20) on the E-step's weights (summed over objectives) and
+    /// the temperature duals' loss: one Adam step on the policy and one on all duals.
+    /// Returns the policy KL parts before the update, `[P, parts]`.
+    fn fit_improved(&mut self, fit: &Improvement, estep: &EStepOutput) -> Tensor {
+        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
+        let online = self.policy.forward_members(&fit.obs, None);
+        self.fit_policy(
+            &online,
+            &fit.target,
+            &fit.actions,
+            &weights,
+            &estep.temperature_loss,
+            fit.fit_states(),
+        )
     }
 
     /// The members' batches stacked member-first (on the learner's device), with the
@@ -299,19 +443,13 @@ impl Learner {
         )
     }
 
-    /// The E-step on `q [P, M, N, K]` (with `log_prior [P, A, N]`: exact, categorical),
+    /// The E-step on `fit.q [P, M, N, K]` (exact with `fit.log_prior`, categorical),
     /// with each member's ε and eta per objective, or (conditioned, one member) each
     /// state's grid point's.
-    fn estep(
-        &self,
-        q: &Tensor,
-        log_prior: Option<&Tensor>,
-        preferences: Option<&StatePreferences>,
-        states: StateMean<'_>,
-    ) -> EStepOutput {
+    fn estep(&self, fit: &Improvement) -> EStepOutput {
         let k = self.bound.objectives.len() as i64;
         let temperature = self.duals.temperature();
-        let (temperature, epsilon) = match preferences {
+        let (temperature, epsilon) = match &fit.preferences {
             None => (
                 temperature.reshape([-1, 1, k]),
                 self.epsilon.reshape([-1, 1, k]),
@@ -321,7 +459,8 @@ impl Learner {
                 p.epsilon.shallow_clone(),
             ),
         };
-        match log_prior {
+        let (q, states) = (&fit.q, fit.states());
+        match &fit.log_prior {
             None => sampled_estep_with(q, &temperature, &epsilon, states),
             Some(prior) => exact_estep_with(q, prior, &temperature, &epsilon, states),
         }
@@ -383,28 +522,19 @@ impl Learner {
             .stream(Purpose::LearnerNoise)
             .normal(&shape, self.device)
             .unsqueeze(0);
-        let samples = tch::no_grad(|| target.mean.unsqueeze(1) + noise * target.std.unsqueeze(1));
-        let q = q_fn(&samples.squeeze_dim(0)).unsqueeze(0);
-        let uniform = Tensor::full([1, n], 1.0 / n as f64, (Kind::Float, self.device));
-        let states = match &preferences {
-            Some(p) => StateMean::PerGridPoint(&p.state_weight),
-            None => StateMean::Members(&uniform),
+        let actions = tch::no_grad(|| target.mean.unsqueeze(1) + noise * target.std.unsqueeze(1));
+        let q = q_fn(&actions.squeeze_dim(0)).unsqueeze(0);
+        let fit = Improvement {
+            obs,
+            target: target_out,
+            actions,
+            q,
+            log_prior: None,
+            preferences,
+            state_weight: Tensor::full([1, n], 1.0 / n as f64, (Kind::Float, self.device)),
         };
-        let estep = self.estep(&q, None, preferences.as_ref(), states);
-        let online_out = self.policy.forward_members(&obs, None);
-        let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
-        let fit_states = match preferences {
-            Some(_) => StateMean::Uniform,
-            None => states,
-        };
-        let policy_kl = self.fit_policy(
-            &online_out,
-            &target_out,
-            &samples,
-            &weights,
-            &estep.temperature_loss,
-            fit_states,
-        );
+        let estep = self.estep(&fit);
+        let policy_kl = self.fit_improved(&fit, &estep);
         self.advance_targets().expect("same layout");
         (self.duals.values().0, to_vec(&policy_kl))
     }

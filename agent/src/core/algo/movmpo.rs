@@ -34,19 +34,19 @@
 //! minibatches from its own stream, so member p computes what a learner of its config
 //! alone computes on the same batches.
 //!
-//! Shape legend: P members, T unroll length, B unrolls, N = TB pairs, D action dims, A
-//! discrete actions, K objectives, C critics.
+//! Shape legend: P members, T unroll length, B unrolls, N = TB pairs (R: the widest
+//! member's real ones), O observation size, D action dims, A discrete actions, K
+//! objectives, C critics.
 
-use super::batch::SnippetBatch;
+use super::batch::{SnippetBatch, StepShape};
 use super::estep::StateMean;
 use super::objectives::QSource;
 use super::real_states::{gather_states, masked_half_mse, real_rows};
-use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
-use super::update::StepMeasures;
+use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, to_vec};
+use super::update::{PhaseClock, StepMeasures};
 use super::vmpo_estep::{StepOneInputs, advantage_estep};
 use crate::core::nets::PolicyOutput;
 use crate::core::random::{Purpose, StreamKey};
-use std::time::Instant;
 use tch::{Device, Kind, Tensor};
 
 /// Inputs of the T-step targets.
@@ -175,25 +175,79 @@ impl Learner {
     /// One update (critic, step 1, step 2, duals) on the members' unrolls of `batch`
     /// (member-first: `[P, T, B, ..]`).
     fn vmpo_update(&mut self, batch: &SnippetBatch) -> StepMeasures {
-        let start = Instant::now();
-        let p = self.members.count();
-        let (t_len, b) = (
-            batch.observations.size()[1] - 1,
-            batch.observations.size()[2],
-        );
-        let n = t_len * b;
-        let heads = self.bound.critic_names.len() as i64;
-        let obs_all = batch.observations.reshape([p, (t_len + 1) * b, -1]);
-        let obs_taken = obs_all.narrow(1, 0, n);
+        let mut clock = PhaseClock::start(self.device);
+        let shape = StepShape::of(batch, self.bound.critic_names.len() as i64);
+
+        // 1. Policy evaluation (D.1, eq. 21).
+        let eval = self.evaluate_values(batch, shape);
+        clock.policy_evaluation_done();
+
+        // 2. Step 1 (D.2.1): per-objective top-k weights and temperature duals.
+        let k = self.bound.objectives.len() as i64;
+        let estep = advantage_estep(&StepOneInputs {
+            advantages: &self.objective_advantages(&eval.advantages),
+            eligible: &eval.valid,
+            temperature: &self.duals.temperature().reshape([-1, 1, k]),
+            epsilon: &self.epsilon.reshape([-1, 1, k]),
+            fraction: self.cfg.vmpo.top_k_fraction,
+            rule: self.cfg.vmpo.top_k,
+        });
+        let pairs = real_pairs(batch, shape, &eval, &estep.fit_weights);
+        clock.e_step_done();
+
+        // 3. Step 2 (D.2.2, eq. 25) and dual updates.
+        let policy_kl = self.fit_taken_actions(&pairs, &estep.temperature_loss);
+        clock.m_step_done();
+
+        StepMeasures {
+            critic_loss: eval.critic_loss,
+            estep_kl: estep.kl,
+            value_mean: eval.value_mean,
+            policy_kl,
+            timings: clock.timings(),
+        }
+    }
+
+    /// Policy evaluation (D.1, eq. 21): V_c at every state, the T-step targets and
+    /// advantages, and one Adam step of the critics on the targets.
+    fn evaluate_values(&mut self, batch: &SnippetBatch, shape: StepShape) -> ValueEvaluation {
+        let (p, t_len, b, heads) = (shape.members, shape.t_len, shape.b, shape.heads);
+        let n = shape.pairs();
         let Critics::V { online: critic } = &self.critics else {
             unreachable!("V-MPO learners are built with state-value critics")
         };
-
-        // 1. Policy evaluation (D.1, eq. 21).
         let values = critic
-            .forward_members(&obs_all)
+            .forward_members(&batch.observations.reshape([p, shape.states(), -1]))
             .reshape([p, t_len + 1, b, heads]);
-        let rewards = self.critic_rewards(&batch.rewards);
+        let targets = tch::no_grad(|| self.member_unroll_targets(batch, &values.detach(), shape));
+        let v_taken = values.narrow(1, 0, t_len);
+        let advantages = (&targets - v_taken.detach()).reshape([p, n, heads]);
+        let valid = batch.valid.reshape([p, n]);
+        let critic_loss = masked_half_mse(&(v_taken - &targets).reshape([p, n, heads]), &valid);
+        let real_steps = valid.sum_dim_intlist(-1, true, Kind::Float).clamp_min(1.0);
+        let value_mean = (values.detach().narrow(1, 0, t_len).reshape([p, n, heads])
+            * valid.unsqueeze(-1))
+        .sum_dim_intlist(1, false, Kind::Float)
+            / &real_steps;
+        self.update_critics(&critic_loss.sum(Kind::Float));
+        ValueEvaluation {
+            advantages,
+            valid,
+            real_steps,
+            value_mean,
+            critic_loss,
+        }
+    }
+
+    /// Each member's T-step targets (eq. 21) from its unrolls and `values
+    /// [P, T+1, B, C]`, `[P, T, B, C]`.
+    fn member_unroll_targets(
+        &self,
+        batch: &SnippetBatch,
+        values: &Tensor,
+        shape: StepShape,
+    ) -> Tensor {
+        let (p, t_len, b, heads) = (shape.members, shape.t_len, shape.b, shape.heads);
         // The targets run along time: members join the unroll axis.
         let time_first = |t: &Tensor| {
             let size = t.size();
@@ -201,31 +255,20 @@ impl Learner {
             shape.extend_from_slice(&size[3..]);
             t.transpose(0, 1).reshape(shape.as_slice())
         };
-        let targets = tch::no_grad(|| {
-            unroll_targets(&UnrollTargetInputs {
-                rewards: &time_first(&rewards),
-                discounts: &time_first(&batch.discounts),
-                valid: &time_first(&batch.valid),
-                values: &time_first(&values.detach()),
-                gamma: self.settings.discount,
-            })
+        unroll_targets(&UnrollTargetInputs {
+            rewards: &time_first(&self.critic_rewards(&batch.rewards)),
+            discounts: &time_first(&batch.discounts),
+            valid: &time_first(&batch.valid),
+            values: &time_first(values),
+            gamma: self.settings.discount,
         })
         .reshape([t_len, p, b, heads])
-        .transpose(0, 1);
-        let v_taken = values.narrow(1, 0, t_len);
-        let advantages = (&targets - v_taken.detach()).reshape([p, n, heads]);
-        let valid = batch.valid.reshape([p, n]);
-        let per_head = masked_half_mse(&(v_taken - &targets).reshape([p, n, heads]), &valid);
-        let real_steps = valid.sum_dim_intlist(-1, true, Kind::Float).clamp_min(1.0);
-        let value_mean = (values.detach().narrow(1, 0, t_len).reshape([p, n, heads])
-            * valid.unsqueeze(-1))
-        .sum_dim_intlist(1, false, Kind::Float)
-            / &real_steps;
-        self.update_critics(&per_head.sum(Kind::Float));
-        let policy_evaluation_ms = ms_since(start, self.device);
+        .transpose(0, 1)
+    }
 
-        // 2. Step 1 (D.2.1): per-objective top-k weights and temperature duals.
-        let start = Instant::now();
+    /// The advantages of the bound objectives, `[P, N, C] -> [P, N, K]`: each learned
+    /// objective's critic head.
+    fn objective_advantages(&self, advantages: &Tensor) -> Tensor {
         let columns: Vec<Tensor> = self
             .bound
             .objectives
@@ -237,76 +280,100 @@ impl Learner {
                 }
             })
             .collect();
-        let objective_advantages = Tensor::stack(&columns, -1);
-        let k = self.bound.objectives.len() as i64;
-        let estep = advantage_estep(&StepOneInputs {
-            advantages: &objective_advantages,
-            eligible: &valid,
-            temperature: &self.duals.temperature().reshape([-1, 1, k]),
-            epsilon: &self.epsilon.reshape([-1, 1, k]),
-            fraction: self.cfg.vmpo.top_k_fraction,
-            rule: self.cfg.vmpo.top_k,
-        });
-        // Step 2 fits the policy, and bounds its KL, at each member's real steps only:
-        // padding carries no weight and is never acted from.
-        let weights = estep.fit_weights;
-        let taken = batch.actions.flatten(1, 2);
-        let real = real_rows(&valid.gt(0.5));
-        let (obs_real, taken, weights) = match &real.index {
-            None => (obs_taken, taken, weights),
-            Some(index) => (
-                gather_states(&obs_taken, index, 1),
-                gather_states(&taken, index, 1),
-                gather_states(&weights, index, 1),
-            ),
-        };
-        // fit_policy averages over each member's real steps; the weights sum to 1 over
-        // them.
-        let weights = weights * &real_steps;
-        let e_step_ms = ms_since(start, self.device);
+        Tensor::stack(&columns, -1)
+    }
 
-        // 3. Step 2 (D.2.2, eq. 25) and dual updates.
-        let start = Instant::now();
+    /// Step 2 (D.2.2, eq. 25): weighted maximum likelihood of the taken actions under
+    /// the decoupled trust region against pi_old, plus the temperature loss; one Adam
+    /// step on the policy and one on the duals. A latent torso evaluates online and
+    /// target policies with the same latent noise, so that their KL is the heads'.
+    /// Returns the policy KL parts before the update, `[P, parts]`.
+    fn fit_taken_actions(&mut self, pairs: &RealPairs, temperature_loss: &Tensor) -> Tensor {
         let noise = self
             .policy
-            .latent_noise(obs_real.size()[1], &mut self.stream(Purpose::LatentNoise));
+            .latent_noise(pairs.obs.size()[1], &mut self.stream(Purpose::LatentNoise));
         let target_out = tch::no_grad(|| {
             self.target_policy
-                .forward_members(&obs_real, noise.as_ref())
+                .forward_members(&pairs.obs, noise.as_ref())
         });
-        let online_out = self.policy.forward_members(&obs_real, noise.as_ref());
+        let online_out = self.policy.forward_members(&pairs.obs, noise.as_ref());
         let (actions, weights) = match &online_out {
-            PolicyOutput::Gaussian(_) => (taken.unsqueeze(1), weights.unsqueeze(1)),
+            PolicyOutput::Gaussian(_) => (pairs.taken.unsqueeze(1), pairs.weights.unsqueeze(1)),
             PolicyOutput::Categorical(logits) => {
-                let one_hot = taken
+                let one_hot = pairs
+                    .taken
                     .one_hot(logits.size()[2])
                     .to_kind(Kind::Float)
                     .transpose(1, 2);
-                (taken, one_hot * weights.unsqueeze(1))
+                (
+                    pairs.taken.shallow_clone(),
+                    one_hot * pairs.weights.unsqueeze(1),
+                )
             }
         };
-        let policy_kl = self.fit_policy(
+        self.fit_policy(
             &online_out,
             &target_out,
             &actions,
             &weights,
-            &estep.temperature_loss,
-            StateMean::Members(&real.weight),
-        );
-        let m_step_ms = ms_since(start, self.device);
+            temperature_loss,
+            StateMean::Members(&pairs.state_weight),
+        )
+    }
+}
 
-        StepMeasures {
-            critic_loss: per_head,
-            estep_kl: estep.kl,
-            value_mean,
-            policy_kl,
-            timings: PhaseTimings {
-                policy_evaluation_ms,
-                e_step_ms,
-                m_step_ms,
-                target_update_ms: 0.0,
-            },
-        }
+/// What policy evaluation leaves for the policy update (N = TB pairs).
+struct ValueEvaluation {
+    /// `[P, N, C]`: A = G - V, no gradient.
+    advantages: Tensor,
+    /// `[P, N]`: 1 at real steps, 0 at padding.
+    valid: Tensor,
+    /// `[P, 1]`: each member's count of real steps (at least 1).
+    real_steps: Tensor,
+    /// `[P, C]`: mean V_c over each member's real steps, before the update.
+    value_mean: Tensor,
+    /// `[P, C]`: the critics' losses before the update.
+    critic_loss: Tensor,
+}
+
+/// Step 2's data: each member's real steps (gathered to the widest member's count R),
+/// their taken actions and fit weights.
+struct RealPairs {
+    /// `[P, R, O]`.
+    obs: Tensor,
+    /// `[P, R, D]` f32 or `[P, R]` i64.
+    taken: Tensor,
+    /// `[P, R]`: step 1's fit weights, scaled by the member's count of real steps.
+    weights: Tensor,
+    /// `[P, R]`: each member's mean over its real steps (0 at the copies).
+    state_weight: Tensor,
+}
+
+/// Step 2 fits the policy, and bounds its KL, at each member's real steps only:
+/// padding carries no weight and is never acted from.
+fn real_pairs(
+    batch: &SnippetBatch,
+    shape: StepShape,
+    eval: &ValueEvaluation,
+    fit_weights: &Tensor,
+) -> RealPairs {
+    let obs = batch
+        .observations
+        .reshape([shape.members, shape.states(), -1])
+        .narrow(1, 0, shape.pairs());
+    let taken = batch.actions.flatten(1, 2);
+    let real = real_rows(&eval.valid.gt(0.5));
+    let gather = |t: &Tensor| match &real.index {
+        None => t.shallow_clone(),
+        Some(index) => gather_states(t, index, 1),
+    };
+    RealPairs {
+        obs: gather(&obs),
+        taken: gather(&taken),
+        // fit_policy averages over each member's real steps; the weights sum to 1
+        // over them.
+        weights: gather(fit_weights) * &eval.real_steps,
+        state_weight: real.weight,
     }
 }
 

@@ -7,6 +7,7 @@
 use super::objectives::{BoundObjectives, LearnerDims};
 use crate::core::learner_config::LearnerConfig;
 use crate::core::nets::{Members, MultiCritic, Policy, ValueNet};
+use crate::core::random::seeded_init;
 use tch::{Device, nn};
 
 /// A target network (C.1): same layout as `online`'s network, built by `build` on a new
@@ -75,6 +76,32 @@ impl Networks {
         }
         Ok(())
     }
+}
+
+/// One member's networks per config, each built as a learner of that config alone
+/// builds them (same parameters, bit for bit); for more than one member, stacked.
+pub(super) fn build_member_networks(
+    cfgs: &[LearnerConfig],
+    bounds: &[BoundObjectives],
+    dims: &LearnerDims,
+    device: Device,
+    members: Members,
+) -> Result<Networks, tch::TchError> {
+    let mut built = cfgs
+        .iter()
+        .zip(bounds)
+        .map(|(c, b)| seeded_init(c.seed, || build_networks(c, dims, b, device, Members::ONE)))
+        .collect::<Result<Vec<_>, _>>()?;
+    if !members.stacked() {
+        return Ok(built.remove(0));
+    }
+    // Built under the lock so that its (overwritten) draws cannot change another
+    // run's initialisation.
+    let stacked = seeded_init(cfgs[0].seed, || {
+        build_networks(&cfgs[0], dims, &bounds[0], device, members)
+    })?;
+    stacked.load_members(&built)?;
+    Ok(stacked)
 }
 
 /// The networks in today's construction order, which fixes what each parameter

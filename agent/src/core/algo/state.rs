@@ -22,7 +22,7 @@ use super::batch::{BatchError, SnippetBatch};
 use super::dual::{AlphaPart, DualOptimizer, Duals};
 use super::mstep::KlConstraint;
 pub(crate) use super::networks::Critics;
-use super::networks::{Networks, build_networks};
+use super::networks::build_member_networks;
 use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
 use super::population::check_population;
@@ -33,7 +33,7 @@ use crate::core::learner_config::{ConfigError, LearnerConfig, SharedSettings};
 use crate::core::nets::{
     ActOutput, Acting, ActionKind, Members, Policy, PolicySnapshot, SnapshotError,
 };
-use crate::core::random::{Purpose, RandomStream, StreamKey, seeded_init};
+use crate::core::random::{Purpose, RandomStream, StreamKey};
 use std::cell::Cell;
 use std::time::Instant;
 use tch::{Device, Kind, Tensor, nn};
@@ -111,6 +111,57 @@ pub(crate) fn ms_since(start: Instant, device: Device) -> f64 {
     start.elapsed().as_secs_f64() * 1e3
 }
 
+/// The duals at their initial values: `temperatures` eta, and alpha_mu and
+/// alpha_Sigma (one each, or one per action dimension with a per-dimension KL
+/// constraint) or the categorical alpha, as the action space has them.
+fn initial_duals(
+    settings: &SharedSettings,
+    action: ActionKind,
+    temperatures: usize,
+    device: Device,
+    members: Members,
+) -> Duals {
+    let part = |init: f64, per_part: usize, min: f64| AlphaPart {
+        init: vec![init; per_part],
+        min,
+    };
+    let min = settings.min_alpha;
+    let alphas = match action {
+        ActionKind::Continuous { dim } => {
+            let per_part = match settings.kl_constraint {
+                KlConstraint::Summed => 1,
+                KlConstraint::PerDimension => dim as usize,
+            };
+            vec![
+                part(settings.init_alpha_mean, per_part, min.mean),
+                part(settings.init_alpha_cov, per_part, min.cov),
+            ]
+        }
+        ActionKind::Discrete { .. } => {
+            vec![part(settings.init_alpha_categorical, 1, min.categorical)]
+        }
+    };
+    Duals::with_members(
+        &vec![settings.init_temperature; temperatures],
+        &alphas,
+        DualOptimizer {
+            lr: settings.dual_learning_rate,
+            beta2: settings.dual_adam_beta2,
+            temperature_kind: settings.temperature_parameterization,
+        },
+        device,
+        members,
+    )
+}
+
+/// The members' values, member after member, as one tensor of `shape` on `device`.
+fn member_tensor(values: impl Iterator<Item = f32>, shape: Vec<i64>, device: Device) -> Tensor {
+    let values: Vec<f32> = values.collect();
+    Tensor::from_slice(&values)
+        .reshape(shape.as_slice())
+        .to_device(device)
+}
+
 impl Learner {
     /// Builds networks (seeded by `cfg.seed`), target copies, optimizers and duals.
     pub fn new(
@@ -139,98 +190,38 @@ impl Learner {
             .collect::<Result<Vec<_>, _>>()?;
         let bound = bounds[0].clone();
         let settings = cfg.shared();
-        let built = cfgs
-            .iter()
-            .zip(&bounds)
-            .map(|(c, b)| seeded_init(c.seed, || build_networks(c, &dims, b, device, Members::ONE)))
-            .collect::<Result<Vec<_>, _>>()?;
-        let nets = match members.stacked() {
-            false => built.into_iter().next().expect("one member"),
-            true => {
-                // Built under the lock so that its (overwritten) draws cannot change
-                // another run's initialisation.
-                let stacked = seeded_init(cfg.seed, || {
-                    build_networks(&cfg, &dims, &bound, device, members)
-                })?;
-                stacked.load_members(&built)?;
-                stacked
-            }
+        let nets = build_member_networks(&cfgs, &bounds, &dims, device, members)?;
+        let adam = |vs: &nn::VarStore, lr: f64| {
+            Adam::for_var_store(vs, AdamConfig::new(lr, settings.adam_eps))
         };
-        let Networks {
-            policy_vs,
-            policy,
-            target_policy_vs,
-            target_policy,
-            critic_vs,
-            critics,
-        } = nets;
-        let policy_opt = Adam::for_var_store(
-            &policy_vs,
-            AdamConfig::new(settings.policy_learning_rate, settings.adam_eps),
-        );
-        let critic_opt = Adam::for_var_store(
-            &critic_vs,
-            AdamConfig::new(settings.critic_learning_rate, settings.adam_eps),
-        );
+        let policy_opt = adam(&nets.policy_vs, settings.policy_learning_rate);
+        let critic_opt = adam(&nets.critic_vs, settings.critic_learning_rate);
         let conditioned = cfg
             .conditioning
             .as_ref()
             .map(|c| Conditioned::new(c, &bound, &dims, device))
             .transpose()?;
+        // An ε-conditioned learner has one eta per objective and grid point.
         let grid_points = conditioned.as_ref().map_or(1, |c| c.grid.len());
-        let temperatures = vec![settings.init_temperature; grid_points * bound.objectives.len()];
-        let part = |init: f64, per_part: usize, min: f64| AlphaPart {
-            init: vec![init; per_part],
-            min,
-        };
-        let min = settings.min_alpha;
-        let alphas = match dims.action {
-            ActionKind::Continuous { dim } => {
-                let per_part = match settings.kl_constraint {
-                    KlConstraint::Summed => 1,
-                    KlConstraint::PerDimension => dim as usize,
-                };
-                vec![
-                    part(settings.init_alpha_mean, per_part, min.mean),
-                    part(settings.init_alpha_cov, per_part, min.cov),
-                ]
-            }
-            ActionKind::Discrete { .. } => {
-                vec![part(settings.init_alpha_categorical, 1, min.categorical)]
-            }
-        };
-        let duals = Duals::with_members(
-            &temperatures,
-            &alphas,
-            DualOptimizer {
-                lr: settings.dual_learning_rate,
-                beta2: settings.dual_adam_beta2,
-                temperature_kind: settings.temperature_parameterization,
-            },
-            device,
-            members,
-        );
-        let eps: Vec<f32> = bounds
-            .iter()
-            .flat_map(|b| b.objectives.iter().map(|o| o.epsilon as f32))
-            .collect();
+        let temperatures = grid_points * bound.objectives.len();
+        let duals = initial_duals(&settings, dims.action, temperatures, device, members);
         let k = bound.objectives.len() as i64;
-        let epsilon = Tensor::from_slice(&eps)
-            .reshape(members.shape(&[k]).as_slice())
-            .to_device(device);
-        let w: Vec<f32> = bounds
-            .iter()
-            .flat_map(|b| b.critic_reward_weights.iter().flatten().map(|&w| w as f32))
-            .collect();
+        let epsilon = member_tensor(
+            bounds
+                .iter()
+                .flat_map(|b| b.objectives.iter().map(|o| o.epsilon as f32)),
+            members.shape(&[k]),
+            device,
+        );
         let heads = bound.critic_names.len() as i64;
-        let critic_reward_weights = Tensor::from_slice(&w)
-            .reshape(
-                members
-                    .shape(&[dims.reward_names.len() as i64, heads])
-                    .as_slice(),
-            )
-            .to_device(device);
-        let noise: Vec<NoiseSource> = cfgs
+        let critic_reward_weights = member_tensor(
+            bounds
+                .iter()
+                .flat_map(|b| b.critic_reward_weights.iter().flatten().map(|&w| w as f32)),
+            members.shape(&[dims.reward_names.len() as i64, heads]),
+            device,
+        );
+        let noise = cfgs
             .iter()
             .map(|c| NoiseSource::Draw(StreamKey::new(c.seed, Purpose::LearnerNoise, 0)))
             .collect();
@@ -240,12 +231,12 @@ impl Learner {
             dims,
             bound,
             device,
-            policy_vs,
-            policy,
-            target_policy_vs,
-            target_policy,
-            critic_vs,
-            critics,
+            policy_vs: nets.policy_vs,
+            policy: nets.policy,
+            target_policy_vs: nets.target_policy_vs,
+            target_policy: nets.target_policy,
+            critic_vs: nets.critic_vs,
+            critics: nets.critics,
             policy_opt,
             critic_opt,
             duals,

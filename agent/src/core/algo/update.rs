@@ -1,8 +1,8 @@
 //! The optimizer half of a learner step, shared by both algorithm families: the
 //! critic's Adam step, the policy fit under the decoupled trust region (the M-step of
 //! eqs. 16-20 for MO-MPO, step 2 of eq. 25 for MO-V-MPO; `mstep.rs` has the losses)
-//! with one Adam step on the policy and one on the duals, and the target-network
-//! schedule (C.1) that ends every step.
+//! with one Adam step on the policy and one on the duals, the target-network
+//! schedule (C.1) that ends every step, and the clock of the step's phases.
 //!
 //! Shape legend: N states, M samples (or A actions), D action dims, K objectives,
 //! C learned critics.
@@ -12,7 +12,7 @@ use super::mstep::{TrustRegion, categorical_mstep_with, gaussian_mstep_with};
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
 use crate::core::nets::PolicyOutput;
 use std::time::Instant;
-use tch::{Kind, Tensor, nn};
+use tch::{Device, Kind, Tensor, nn};
 
 /// What a step measured before its target update (tensors on the learner's device).
 #[derive(Debug)]
@@ -27,6 +27,54 @@ pub(crate) struct StepMeasures {
     pub policy_kl: Tensor,
     /// Phase timings; `target_update_ms` is filled in by `finish_members`.
     pub timings: PhaseTimings,
+}
+
+/// The wall clock of a step's phases, read as each one ends. Each reading waits for
+/// the device first: its kernels run asynchronously, so an unsynchronized reading
+/// would charge a phase's work to whichever phase next waits for a result.
+#[derive(Debug)]
+pub(crate) struct PhaseClock {
+    device: Device,
+    since: Instant,
+    timings: PhaseTimings,
+}
+
+impl PhaseClock {
+    /// A clock whose first phase starts now.
+    pub(crate) fn start(device: Device) -> Self {
+        Self {
+            device,
+            since: Instant::now(),
+            timings: PhaseTimings::default(),
+        }
+    }
+
+    /// Milliseconds since the last phase ended; the next phase starts now.
+    fn lap(&mut self) -> f64 {
+        let ms = ms_since(self.since, self.device);
+        self.since = Instant::now();
+        ms
+    }
+
+    /// Policy evaluation (the critics' targets and their update) has ended.
+    pub(crate) fn policy_evaluation_done(&mut self) {
+        self.timings.policy_evaluation_ms = self.lap();
+    }
+
+    /// The E-step (MO-V-MPO: step 1) has ended.
+    pub(crate) fn e_step_done(&mut self) {
+        self.timings.e_step_ms = self.lap();
+    }
+
+    /// The M-step (MO-V-MPO: step 2) and the dual updates have ended.
+    pub(crate) fn m_step_done(&mut self) {
+        self.timings.m_step_ms = self.lap();
+    }
+
+    /// The phases so far; the target update is `finish_members`'s to time.
+    pub(crate) fn timings(&self) -> PhaseTimings {
+        self.timings
+    }
 }
 
 impl Learner {
@@ -225,7 +273,6 @@ fn move_towards(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tch::Device;
 
     fn store(value: f64) -> nn::VarStore {
         let vs = nn::VarStore::new(Device::Cpu);

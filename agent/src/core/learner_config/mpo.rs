@@ -12,20 +12,17 @@ use super::{ConfigError, KlConstraint, TemperatureParameterization};
 pub struct MpoConfig {
     /// Table 2 "actions sampled per state" M = 20; Shadow Hand 30, Sawyer 15.
     pub num_samples: i64,
-    /// Table 2 "KL-constraint on policy mean" beta_mu = 1e-3; humanoid 5e-3.
-    /// Bounds the KL summed over action dimensions (eq. 20), or each dimension's KL
-    /// with `kl_constraint = "per_dimension"`.
+    /// KL bound beta_mu of the Gaussian policy's mean (eq. 20): on the KL summed over
+    /// action dimensions, or on each dimension's KL with `kl_constraint = "per_dimension"`.
+    /// Table 2 "KL-constraint on policy mean" 1e-3; humanoid 5e-3.
     pub beta_mean: f64,
-    /// Table 2 "KL-constraint on policy covariance" beta_Sigma = 1e-5; humanoid 1e-6.
+    /// KL bound beta_Sigma of the Gaussian policy's covariance (eq. 20), summed or per
+    /// dimension as `beta_mean`. Table 2 "KL-constraint on policy covariance" 1e-5;
+    /// humanoid 1e-6.
     pub beta_cov: f64,
-    /// How beta_mu and beta_Sigma bound the Gaussian policy's KL: `"summed"` (default)
-    /// bounds the KL of the whole D-dimensional Gaussian with one alpha_mu and one
-    /// alpha_Sigma, as eq. 20 is written; `"per_dimension"` bounds every action
-    /// dimension's KL by beta with D multipliers each, as Acme's MO-MPO does by
-    /// default (`per_dim_constraining`). The paper does not say which its betas were
-    /// tuned for; at D = 21 (humanoid) the summed bound is up to 21 times tighter.
-    /// Every preset in `configs/` keeps the default (the paper's equation). No effect
-    /// on categorical policies.
+    /// How beta_mu and beta_Sigma bound the Gaussian policy's KL over the D action
+    /// dimensions. The paper does not say which its betas were tuned for. No effect on
+    /// categorical policies.
     pub kl_constraint: KlConstraint,
     /// How eta_k is parameterized for its Adam steps: `"softplus"` (default, Acme's
     /// eta = softplus(p)) or `"log"` (eta = exp(p)), whose steps are relative, so that
@@ -33,37 +30,45 @@ pub struct MpoConfig {
     /// steps instead of about scale times more (docs/algorithms/mo-mpo.md, "Reward
     /// scale: a bandit").
     pub temperature_parameterization: TemperatureParameterization,
-    /// A.2: KL constraint beta of the categorical policy (Deep Sea Treasure), 1e-3.
+    /// KL bound beta of a categorical policy. A.2 (Deep Sea Treasure): 1e-3.
     pub beta_categorical: f64,
-    /// Table 2 "initial temperature eta" 1 (the value of eta, not of its parameter).
+    /// Initial temperature eta_k (its value, not its parameter's). Table 2 "initial
+    /// temperature eta" 1.
     pub init_temperature: f64,
-    /// Initial Lagrange multiplier alpha_mu. Not in the paper; Acme TF MO-MPO starts
-    /// its parameter at 1, i.e. softplus(1) ~ 1.31.
+    /// Initial Lagrange multiplier alpha_mu (its value). Not in the paper; 1 (Acme TF
+    /// MO-MPO starts its parameter at 1, i.e. softplus(1) ~ 1.31).
     pub init_alpha_mean: f64,
-    /// Initial Lagrange multiplier alpha_Sigma. Not in the paper; Acme TF MO-MPO: 10.
+    /// Initial Lagrange multiplier alpha_Sigma (its value). Not in the paper; 10, as
+    /// Acme TF MO-MPO.
     pub init_alpha_cov: f64,
-    /// Initial Lagrange multiplier of the categorical KL. Not in the paper; 1.0.
+    /// Initial Lagrange multiplier alpha of a categorical policy (its value). Not in
+    /// the paper; 1.
     pub init_alpha_categorical: f64,
-    /// Adam learning rate of all dual variables (eta_k, alpha). Not in the paper;
-    /// Acme uses 1e-2.
+    /// Adam learning rate of the duals (eta_k, alpha). Not in the paper; 1e-2, as
+    /// Acme.
     pub dual_learning_rate: f64,
     /// Table 2 "Retrace sequence size" 8. A.2 (Deep Sea Treasure): 1, which makes
     /// the Retrace target a one-step TD target.
     pub retrace_length: usize,
-    /// Table 2 "discount factor gamma" 0.99; A.2 (Deep Sea Treasure) 0.999.
+    /// Discount gamma of the critics' targets (Retrace, eq. 15). Table 2 "discount
+    /// factor gamma" 0.99; A.2 (Deep Sea Treasure) 0.999.
     pub discount: f64,
-    /// Table 2 "target network update period" 200 learner steps; Sawyer 100.
+    /// Learner steps between target-network updates (C.1): of pi_old, the target of
+    /// the KL trust region, and of the target critics. Table 2 "target network update
+    /// period" 200; Sawyer 100.
     pub target_update_period: u64,
-    /// Table 2 "Adam learning rate" 3e-4; humanoid 2e-4 (policy and critics).
+    /// Adam learning rate of policy and critics (`policy_learning_rate` and
+    /// `critic_learning_rate` can set them apart). Table 2 "Adam learning rate" 3e-4;
+    /// humanoid 2e-4.
     pub learning_rate: f64,
-    /// Table 2 "Adam epsilon" 1e-3; humanoid 1e-8.
+    /// Adam epsilon of policy and critics. Table 2 "Adam epsilon" 1e-3; humanoid 1e-8.
     pub adam_eps: f64,
     /// Table 2 "batch size" 512 (snippets per learner step).
     pub batch_size: usize,
     /// Table 2 "replay buffer size" 1e6 transitions (used by the replay, not the learner).
     pub replay_capacity: usize,
-    /// Global-norm clip of policy and critic gradients (duals are never clipped).
-    /// Not in the paper; Acme TF clips at 40. `None` disables clipping.
+    /// Global-norm clip of policy and critic gradients (duals are never clipped);
+    /// unset (default): no clipping. Not in the paper; Acme TF clips at 40.
     pub grad_clip_norm: Option<f64>,
     /// Adam learning rate of the policy alone, when it should differ from
     /// `learning_rate` (Table 2 has one rate for policy and critics; Acme sets them

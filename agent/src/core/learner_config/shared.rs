@@ -12,7 +12,8 @@ use serde::{Deserialize, Serialize};
 #[serde(rename_all = "snake_case")]
 pub enum KlConstraint {
     /// The KL of the full D-dimensional Gaussian (summed over dimensions) is bounded
-    /// by beta, with one alpha_mu and one alpha_Sigma: eq. 20 as the paper writes it.
+    /// by beta, with one alpha_mu and one alpha_Sigma: eqs. 20 and 25 as the paper
+    /// writes them.
     #[default]
     Summed,
     /// Each dimension's KL is bounded by beta separately, with D multipliers

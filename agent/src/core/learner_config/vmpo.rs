@@ -37,14 +37,15 @@ pub enum TopK {
     DualsOnly,
 }
 
-/// On-policy learner and unroll settings.
+/// V-MPO, policy-evaluation and training hyperparameters (Table 5; appendix D).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct VmpoConfig {
     /// Table 5 "unroll length (for n-step return, Sec. D.1)" 32: transitions per
     /// unroll, and the T of the T-step return targets (eq. 21).
     pub unroll_length: usize,
-    /// A.3: "k-step returns ... with a discount factor of 0.95".
+    /// Discount gamma of the critics' targets (the T-step returns, eq. 21). A.3:
+    /// "k-step returns ... with a discount factor of 0.95".
     pub discount: f64,
     /// D.2.1 "top-k advantages": the fraction of the batch's (s, a) pairs kept, 0.5
     /// (Song et al. 2020); which pairs, per `top_k`.
@@ -54,15 +55,16 @@ pub struct VmpoConfig {
     /// without saying how for several objectives; `"joint"`, so that ε_k is a
     /// preference (issue 38).
     pub top_k: TopK,
-    /// Table 5 "KL-constraint on policy mean" beta_mu 0.1 (on the KL summed over
-    /// action dims, or on each dim's KL with `kl_constraint = "per_dimension"`).
+    /// KL bound beta_mu of the Gaussian policy's mean (eq. 25): on the KL summed over
+    /// action dimensions, or on each dimension's KL with `kl_constraint = "per_dimension"`.
+    /// Table 5 "KL-constraint on policy mean" 0.1.
     pub beta_mean: f64,
-    /// Table 5 "KL-constraint on policy covariance" beta_Sigma 1e-5.
+    /// KL bound beta_Sigma of the Gaussian policy's covariance (eq. 25), summed or per
+    /// dimension as `beta_mean`. Table 5 "KL-constraint on policy covariance" 1e-5.
     pub beta_cov: f64,
-    /// `"summed"` (default, eq. 25 as written: the KL of the whole Gaussian) or
-    /// `"per_dimension"` (each action dimension's KL bounded by beta, D multipliers
-    /// each, as Acme's `per_dim_constraining`); see `mpo.kl_constraint`. The preset
-    /// keeps the default. No effect on categorical policies.
+    /// How beta_mu and beta_Sigma bound the Gaussian policy's KL over the D action
+    /// dimensions. The paper does not say which its betas were tuned for. No effect on
+    /// categorical policies.
     pub kl_constraint: KlConstraint,
     /// How eta_k is parameterized for its Adam steps: `"softplus"` (default, Acme's
     /// eta = softplus(p)) or `"log"` (eta = exp(p)), whose steps are relative, so that
@@ -70,31 +72,35 @@ pub struct VmpoConfig {
     /// steps instead of about scale times more (docs/algorithms/mo-mpo.md, "Reward
     /// scale: a bandit").
     pub temperature_parameterization: TemperatureParameterization,
-    /// KL bound of a categorical policy. Not in the paper (its V-MPO runs are all
+    /// KL bound beta of a categorical policy. Not in the paper (its V-MPO runs are all
     /// Gaussian); 0.01, V-MPO's epsilon_alpha for discrete actions (Song et al. 2020).
     pub beta_categorical: f64,
-    /// Table 5 "initial temperature eta" 1.
+    /// Initial temperature eta_k (its value, not its parameter's). Table 5 "initial
+    /// temperature eta" 1.
     pub init_temperature: f64,
-    /// Initial alpha_mu. Not in the paper; 1.
+    /// Initial Lagrange multiplier alpha_mu (its value). Not in the paper; 1.
     pub init_alpha_mean: f64,
-    /// Initial alpha_Sigma. Not in the paper; 1.
+    /// Initial Lagrange multiplier alpha_Sigma (its value). Not in the paper; 1.
     pub init_alpha_cov: f64,
-    /// Initial alpha of a categorical policy. Not in the paper; 1.
+    /// Initial Lagrange multiplier alpha of a categorical policy (its value). Not in
+    /// the paper; 1.
     pub init_alpha_categorical: f64,
-    /// Adam learning rate of the duals (eta_k, alpha). Not in the paper; 1e-2 as
-    /// for MO-MPO, so that one gradient step per learner step (D.2.1) moves eta.
+    /// Adam learning rate of the duals (eta_k, alpha). Not in the paper; 1e-2, as for
+    /// MO-MPO, so that one gradient step per learner step (D.2.1) moves eta.
     pub dual_learning_rate: f64,
-    /// Table 5 "Adam learning rate" 1e-4 (policy and critics).
+    /// Adam learning rate of policy and critics. Table 5 "Adam learning rate" 1e-4.
     pub learning_rate: f64,
-    /// Adam epsilon. Not in Table 5; 1e-8 (Adam's usual value).
+    /// Adam epsilon of policy and critics. Not in Table 5; 1e-8 (Adam's usual value).
     pub adam_eps: f64,
-    /// Table 5 "batch size" 128 unrolls per learner step; each is used once (more often
-    /// with `epochs` > 1).
+    /// Table 5 "batch size" 128 (unrolls per learner step); each is used once (more
+    /// often with `epochs` > 1).
     pub batch_size: usize,
-    /// Learner steps between copies of the policy into pi_old, the target of the KL
-    /// trust region (eq. 25). Not in the paper; V-MPO's T_target, 100.
+    /// Learner steps between target-network updates: of pi_old, the target of the KL
+    /// trust region (eq. 25); V-MPO's critics have no target. Not in the paper; V-MPO's
+    /// T_target, 100.
     pub target_update_period: u64,
-    /// Global-norm clip of policy and critic gradients. Not in the paper; off.
+    /// Global-norm clip of policy and critic gradients (duals are never clipped);
+    /// unset (default): no clipping. Not in the paper.
     pub grad_clip_norm: Option<f64>,
     /// Passes over each batch. Not in the paper: V-MPO uses each batch once (1, the
     /// default). More passes do more updates per env step, as PPO's epochs do; every
