@@ -71,7 +71,13 @@ fn median_figures(runs: &[Figures]) -> Figures {
 
 fn in_process(env: &str, num_envs: usize, calls: usize) -> Figures {
     let out = Command::new(default_python())
-        .args(["-m", "env_server.tools.bench_inprocess", "--raw", "--env", env])
+        .args([
+            "-m",
+            "env_server.tools.bench_inprocess",
+            "--raw",
+            "--env",
+            env,
+        ])
         .args([
             "--num-envs",
             &num_envs.to_string(),
