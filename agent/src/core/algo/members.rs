@@ -12,7 +12,7 @@ impl Learner {
     /// Member `member`'s online policy parameters, as one network's.
     pub fn member_policy_snapshot(&self, member: usize) -> PolicySnapshot {
         PolicySnapshot {
-            tensors: named_member_arrays(&self.policy_vs, self.members, member as i64),
+            tensors: named_member_arrays(&self.nets.policy_vs, self.members, member as i64),
         }
     }
 
@@ -20,8 +20,12 @@ impl Learner {
     /// and shapes (`parameters` of a learner of one member), sorted by name.
     pub fn member_parameters(&self, member: usize) -> Vec<NamedArray> {
         let member = member as i64;
-        let mut params = named_member_arrays(&self.policy_vs, self.members, member);
-        params.extend(named_member_arrays(&self.critic_vs, self.members, member));
+        let mut params = named_member_arrays(&self.nets.policy_vs, self.members, member);
+        params.extend(named_member_arrays(
+            &self.nets.critic_vs,
+            self.members,
+            member,
+        ));
         params
     }
 

@@ -182,7 +182,7 @@ impl Learner {
 
     /// The online and target Q critics.
     fn q_critics(&self) -> QCritics<'_> {
-        let Critics::Q { online, target, .. } = &self.critics else {
+        let Critics::Q { online, target, .. } = &self.nets.critics else {
             unreachable!("MPO learners are built with Q critics")
         };
         QCritics { online, target }
@@ -205,7 +205,7 @@ impl Learner {
     /// of them (C.2, eq. 15): Gaussian samples from `noise`, or every discrete action.
     fn sample_target(&self, obs: Tensor, noise: Option<&Tensor>) -> TargetSamples {
         let critic = self.q_critics().target;
-        let policy = self.target_policy.forward_members(&obs, None);
+        let policy = self.nets.target_policy.forward_members(&obs, None);
         match &policy {
             PolicyOutput::Gaussian(g) => {
                 let noise = noise.expect("Gaussian policies have continuous actions");
@@ -359,7 +359,7 @@ impl Learner {
     /// Returns the policy KL parts before the update, `[P, parts]`.
     fn fit_improved(&mut self, fit: &Improvement, estep: &EStepOutput) -> Tensor {
         let weights = estep.weights.sum_dim_intlist(-1, false, Kind::Float);
-        let online = self.policy.forward_members(&fit.obs, None);
+        let online = self.nets.policy.forward_members(&fit.obs, None);
         self.fit_policy(
             &online,
             &fit.target,
@@ -480,10 +480,10 @@ impl Learner {
             beta_categorical: s.beta_categorical,
             constraint: s.kl_constraint,
         };
-        let policy = &self.policy;
+        let policy = &self.nets.policy;
         let kept = project(
-            &self.policy_vs,
-            &self.target_policy_vs,
+            &self.nets.policy_vs,
+            &self.nets.target_policy_vs,
             self.members,
             max_ratio,
             || kl_ratio(&policy.forward_members(obs, None), target, &bounds, states),
@@ -513,7 +513,7 @@ impl Learner {
         // Each state is a snippet of length 0: its own grid point.
         let (obs, preferences) = self.preferences_of(&obs.to_device(self.device).unsqueeze(0), 0);
         let n = obs.size()[1];
-        let target_out = tch::no_grad(|| self.target_policy.forward_members(&obs, None));
+        let target_out = tch::no_grad(|| self.nets.target_policy.forward_members(&obs, None));
         let PolicyOutput::Gaussian(target) = &target_out else {
             panic!("improve_policy_with needs a Gaussian policy");
         };

@@ -213,7 +213,7 @@ impl Learner {
     fn evaluate_values(&mut self, batch: &SnippetBatch, shape: StepShape) -> ValueEvaluation {
         let (p, t_len, b, heads) = (shape.members, shape.t_len, shape.b, shape.heads);
         let n = shape.pairs();
-        let Critics::V { online: critic } = &self.critics else {
+        let Critics::V { online: critic } = &self.nets.critics else {
             unreachable!("V-MPO learners are built with state-value critics")
         };
         let values = critic
@@ -290,13 +290,15 @@ impl Learner {
     /// Returns the policy KL parts before the update, `[P, parts]`.
     fn fit_taken_actions(&mut self, pairs: &RealPairs, temperature_loss: &Tensor) -> Tensor {
         let noise = self
+            .nets
             .policy
             .latent_noise(pairs.obs.size()[1], &mut self.stream(Purpose::LatentNoise));
         let target_out = tch::no_grad(|| {
-            self.target_policy
+            self.nets
+                .target_policy
                 .forward_members(&pairs.obs, noise.as_ref())
         });
-        let online_out = self.policy.forward_members(&pairs.obs, noise.as_ref());
+        let online_out = self.nets.policy.forward_members(&pairs.obs, noise.as_ref());
         let (actions, weights) = match &online_out {
             PolicyOutput::Gaussian(_) => (pairs.taken.unsqueeze(1), pairs.weights.unsqueeze(1)),
             PolicyOutput::Categorical(logits) => {

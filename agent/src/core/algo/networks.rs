@@ -40,15 +40,16 @@ pub(crate) enum Critics {
     V { online: ValueNet },
 }
 
-/// What `Learner::build_networks` makes.
+/// A learner's networks: the policy, its target copy and the critics, each with the
+/// variable store that holds its parameters.
 #[derive(Debug)]
-pub(super) struct Networks {
-    pub(super) policy_vs: nn::VarStore,
-    pub(super) policy: Policy,
-    pub(super) target_policy_vs: nn::VarStore,
-    pub(super) target_policy: Policy,
-    pub(super) critic_vs: nn::VarStore,
-    pub(super) critics: Critics,
+pub(crate) struct Networks {
+    pub(crate) policy_vs: nn::VarStore,
+    pub(crate) policy: Policy,
+    pub(crate) target_policy_vs: nn::VarStore,
+    pub(crate) target_policy: Policy,
+    pub(crate) critic_vs: nn::VarStore,
+    pub(crate) critics: Critics,
 }
 
 impl Networks {

@@ -22,7 +22,7 @@ use super::batch::{BatchError, SnippetBatch};
 use super::dual::{AlphaPart, DualOptimizer, Duals};
 use super::mstep::KlConstraint;
 pub(crate) use super::networks::Critics;
-use super::networks::build_member_networks;
+use super::networks::{Networks, build_member_networks};
 use super::noise::{NoiseError, NoiseSource};
 use super::objectives::{BoundObjectives, LearnerDims, bind_config};
 use super::population::check_population;
@@ -30,9 +30,7 @@ use super::preferences::{Conditioned, PreferenceGrid};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::core::device::synchronize;
 use crate::core::learner_config::{ConfigError, LearnerConfig, SharedSettings};
-use crate::core::nets::{
-    ActOutput, Acting, ActionKind, Members, Policy, PolicySnapshot, SnapshotError,
-};
+use crate::core::nets::{ActOutput, Acting, ActionKind, Members, PolicySnapshot, SnapshotError};
 use crate::core::random::{Purpose, RandomStream, StreamKey};
 use std::cell::Cell;
 use std::time::Instant;
@@ -66,12 +64,8 @@ pub struct Learner {
     pub(crate) dims: LearnerDims,
     pub(crate) bound: BoundObjectives,
     pub(crate) device: Device,
-    pub(crate) policy_vs: nn::VarStore,
-    pub(crate) policy: Policy,
-    pub(crate) target_policy_vs: nn::VarStore,
-    pub(crate) target_policy: Policy,
-    pub(crate) critic_vs: nn::VarStore,
-    pub(crate) critics: Critics,
+    /// The policy, its target and the critics, with their variable stores.
+    pub(crate) nets: Networks,
     pub(crate) policy_opt: Adam,
     pub(crate) critic_opt: Adam,
     pub(crate) duals: Duals,
@@ -231,12 +225,7 @@ impl Learner {
             dims,
             bound,
             device,
-            policy_vs: nets.policy_vs,
-            policy: nets.policy,
-            target_policy_vs: nets.target_policy_vs,
-            target_policy: nets.target_policy,
-            critic_vs: nets.critic_vs,
-            critics: nets.critics,
+            nets,
             policy_opt,
             critic_opt,
             duals,
@@ -323,11 +312,11 @@ impl Learner {
     pub fn act(&self, obs: &Tensor, deterministic: bool) -> ActOutput {
         let obs = obs.to_device(self.device);
         if deterministic {
-            return self.policy.act(&obs, Acting::Deterministic);
+            return self.nets.policy.act(&obs, Acting::Deterministic);
         }
         let call = self.acts.replace(self.acts.get() + 1);
         let mut stream = StreamKey::new(self.cfg.seed, Purpose::LearnerActing, 0).at(call);
-        self.policy.act(&obs, Acting::Sample(&mut stream))
+        self.nets.policy.act(&obs, Acting::Sample(&mut stream))
     }
 
     /// This learner step's stream for `purpose` (keyed by `learner.seed`).

@@ -240,9 +240,9 @@ impl Learner {
             return Ok(());
         }
         let rate = self.settings.target_update_rate;
-        move_towards(&mut self.target_policy_vs, &self.policy_vs, rate)?;
-        if let Critics::Q { target_vs, .. } = &mut self.critics {
-            move_towards(target_vs, &self.critic_vs, rate)?;
+        move_towards(&mut self.nets.target_policy_vs, &self.nets.policy_vs, rate)?;
+        if let Critics::Q { target_vs, .. } = &mut self.nets.critics {
+            move_towards(target_vs, &self.nets.critic_vs, rate)?;
         }
         Ok(())
     }

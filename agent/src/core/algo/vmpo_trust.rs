@@ -43,6 +43,7 @@ impl Learner {
     /// A copy of the online policy's parameters, sorted by name.
     pub(super) fn policy_parameters(&self) -> Parameters {
         let mut named: Parameters = self
+            .nets
             .policy_vs
             .variables()
             .into_iter()
@@ -54,7 +55,7 @@ impl Learner {
 
     /// Sets the policy to `start + t_p (end - start)` for each member p.
     fn interpolate(&mut self, start: &Parameters, end: &Parameters, t: &[f64]) {
-        let vars = self.policy_vs.variables();
+        let vars = self.nets.policy_vs.variables();
         let stacked = self.members.count() > 1;
         let device = self.device;
         tch::no_grad(|| {
@@ -85,8 +86,8 @@ impl Learner {
             std: g.std.to_kind(Kind::Double),
         };
         tch::no_grad(|| {
-            let target = self.target_policy.forward_members(obs, noise);
-            match (self.policy.forward_members(obs, noise), target) {
+            let target = self.nets.target_policy.forward_members(obs, noise);
+            match (self.nets.policy.forward_members(obs, noise), target) {
                 (PolicyOutput::Gaussian(online), PolicyOutput::Gaussian(target)) => {
                     let kl = decoupled_kl(&wide(online), &wide(target));
                     let part = |kl: Tensor, beta: f64| {
@@ -141,7 +142,7 @@ impl Learner {
             Some(index) => gather_states(observations, index, 1),
         };
         let mut stream = StreamKey::new(self.cfg.seed, Purpose::LatentNoise, 1).at(self.step);
-        let noise = self.policy.latent_noise(obs.size()[1], &mut stream);
+        let noise = self.nets.policy.latent_noise(obs.size()[1], &mut stream);
         let (mut kl, ratio) = self.step_kl(&obs, noise.as_ref(), &real);
         let mut ratio: Vec<f64> = Vec::try_from(&ratio.to_kind(Kind::Double)).expect("[P]");
         let mut kept = vec![1.0; ratio.len()];

@@ -218,8 +218,8 @@ impl Learner {
     /// The online policy's and critics' parameters, by VarStore name (`policy.*`,
     /// `critic.*`), sorted by name.
     pub fn parameters(&self) -> Vec<NamedArray> {
-        let mut params = named_arrays(&self.policy_vs);
-        params.extend(named_arrays(&self.critic_vs));
+        let mut params = named_arrays(&self.nets.policy_vs);
+        params.extend(named_arrays(&self.nets.critic_vs));
         params
     }
 
@@ -231,11 +231,11 @@ impl Learner {
             .iter()
             .cloned()
             .partition(|p| p.name.starts_with("policy."));
-        load_named(&policy, &self.policy_vs)?;
-        load_named(&critic, &self.critic_vs)?;
-        self.target_policy_vs.copy(&self.policy_vs)?;
-        if let Critics::Q { target_vs, .. } = &mut self.critics {
-            target_vs.copy(&self.critic_vs)?;
+        load_named(&policy, &self.nets.policy_vs)?;
+        load_named(&critic, &self.nets.critic_vs)?;
+        self.nets.target_policy_vs.copy(&self.nets.policy_vs)?;
+        if let Critics::Q { target_vs, .. } = &mut self.nets.critics {
+            target_vs.copy(&self.nets.critic_vs)?;
         }
         Ok(())
     }
@@ -297,10 +297,10 @@ impl Learner {
                 .map(|(k, v)| (k, self.member_view(&v, member)))
                 .collect()
         };
-        let mut params = prefixed(&self.policy_vs, "policy");
-        params.extend(prefixed(&self.target_policy_vs, "target_policy"));
-        params.extend(prefixed(&self.critic_vs, "critic"));
-        if let Critics::Q { target_vs, .. } = &self.critics {
+        let mut params = prefixed(&self.nets.policy_vs, "policy");
+        params.extend(prefixed(&self.nets.target_policy_vs, "target_policy"));
+        params.extend(prefixed(&self.nets.critic_vs, "critic"));
+        if let Critics::Q { target_vs, .. } = &self.nets.critics {
             params.extend(prefixed(target_vs, "target_critic"));
         }
         let duals = &self.duals;
@@ -372,15 +372,15 @@ impl Learner {
         let mut learner = Learner::new(state.config.clone(), state.dims.clone(), device)?;
         let params_path = dir.join("params.safetensors");
         let params = read_tensors(&params_path, device)?;
-        load_prefixed(&learner.policy_vs, "policy", &params, &params_path)?;
+        load_prefixed(&learner.nets.policy_vs, "policy", &params, &params_path)?;
         load_prefixed(
-            &learner.target_policy_vs,
+            &learner.nets.target_policy_vs,
             "target_policy",
             &params,
             &params_path,
         )?;
-        load_prefixed(&learner.critic_vs, "critic", &params, &params_path)?;
-        if let Critics::Q { target_vs, .. } = &learner.critics {
+        load_prefixed(&learner.nets.critic_vs, "critic", &params, &params_path)?;
+        if let Critics::Q { target_vs, .. } = &learner.nets.critics {
             load_prefixed(target_vs, "target_critic", &params, &params_path)?;
         }
         for (key, dst) in [
