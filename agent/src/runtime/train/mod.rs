@@ -196,7 +196,7 @@ struct MemberRun {
 
 /// A population run from its opening to its summaries: what its members share (the
 /// servers, the env's objectives, the learner's dimensions, device and preference
-/// grid) and each member's run. `setup` opens it, `launch` starts and waits for its
+/// grid) and each member's run. `open` opens it, `launch` starts and waits for its
 /// actors and learner, `finish` evaluates and reports.
 struct Population {
     /// The first member's config: the env, actors, budget and periods all members share.
