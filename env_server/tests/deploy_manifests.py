@@ -117,9 +117,11 @@ def probe_args(probe: Manifest) -> argparse.Namespace:
         raise AssertionError(f"env_server.tools.healthcheck refuses the probe's args {command}") from exc
 
 
-# The agent's command line: main.rs, and the flags several subcommands share (cli/args.rs).
+# The agent's command line: main.rs and cli/ (a module per subcommand, cli/args.rs the
+# flags several share).
 AGENT_MAIN = "\n".join(
-    (ROOT / "agent" / "src" / path).read_text(encoding="utf-8") for path in ("main.rs", "cli/args.rs")
+    path.read_text(encoding="utf-8")
+    for path in [ROOT / "agent" / "src" / "main.rs", *sorted((ROOT / "agent" / "src" / "cli").glob("*.rs"))]
 )
 
 
@@ -129,4 +131,7 @@ def agent_flag_exists(flag: str) -> bool:
     name = flag.removeprefix("--")
     field = name.replace("-", "_")
     # The attribute ends at its line's `)]` (its own lists, e.g. conflicts_with_all = [..], hold `]`).
-    return f'long = "{name}"' in AGENT_MAIN or re.search(rf"#\[arg\(long[^\n]*\)\]\s*(?:///.*\s*)*{field}:", AGENT_MAIN)
+    # A field may carry a visibility (`pub(crate) device:` in a shared flag struct).
+    return f'long = "{name}"' in AGENT_MAIN or re.search(
+        rf"#\[arg\(long[^\n]*\)\]\s*(?:///.*\s*)*(?:pub(?:\([^)]*\))?\s+)?{field}:", AGENT_MAIN
+    )

@@ -210,7 +210,7 @@ def test_gpu_overlay_requests_a_gpu_and_cuda(base, gpu) -> None:
     assert env_value(c, "LEARNER_DEVICE") == "cuda"
     assert re.search(r'--device "\$LEARNER_DEVICE"', SCRIPT.read_text(encoding="utf-8"))
     # `--device cuda` is a value of the agent's DeviceChoice (clap ValueEnum: lower case).
-    config_rs = (ROOT / "agent" / "src" / "config" / "mod.rs").read_text(encoding="utf-8")
+    config_rs = (ROOT / "agent" / "src" / "core" / "learner_config" / "mod.rs").read_text(encoding="utf-8")
     choices = re.search(r"pub enum DeviceChoice \{(.*?)\n\}", config_rs, re.S).group(1)
     assert re.search(r"^\s*Cuda,", choices, re.M)
     # Only the agent changes: the servers and everything else render as in the base.
