@@ -14,6 +14,7 @@ pub mod estep;
 pub mod members;
 pub mod mompo;
 pub mod movmpo;
+mod mpo_eval;
 pub mod mstep;
 mod networks;
 pub mod noise;

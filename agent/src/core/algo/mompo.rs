@@ -2,7 +2,7 @@
 //! `sum_k w_k r_k`, one epsilon) through the same code.
 //!
 //! One `step` on a `SnippetBatch` of B snippets of length T does, in order:
-//! 1. **Policy evaluation** (C.2, eq. 15). The target policy draws M actions at each of
+//! 1. **Policy evaluation** (C.2, eq. 15; `mpo_eval.rs`). The target policy draws M actions at each of
 //!    the N = (T+1)B states (noise from the learner's `NoiseSource`; all A actions for
 //!    categorical policies) and the target critic scores them: `Q' [M, N, C]`. V(s) is
 //!    their mean (pi_old-weighted sum for categorical). Retrace targets for the T*B
@@ -35,53 +35,16 @@
 
 use super::batch::{SnippetBatch, StepShape};
 use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};
+use super::mpo_eval::TargetSamples;
 use super::objectives::{QSource, action_norm_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
 use super::projection::{Bounds, kl_ratio, project};
-use super::real_states::{gather_states, masked_half_mse, real_states};
-use super::retrace::{RetraceInputs, importance_weights, retrace_targets};
-use super::state::{Critics, Learner, LearnerError, LearnerStats, to_vec};
+use super::real_states::{gather_states, real_states};
+use super::state::{Learner, LearnerError, LearnerStats, to_vec};
 use super::update::{PhaseClock, StepMeasures};
-use crate::core::nets::{ActionKind, MultiCritic, PolicyOutput};
+use crate::core::nets::PolicyOutput;
 use crate::core::random::Purpose;
 use tch::{Kind, Tensor};
-
-/// The target networks at every state: pi_old there, its M sampled actions (all A
-/// actions, categorical) scored by the target critic, and V(s) from those scores.
-struct TargetSamples {
-    /// `[P, N, O]`: the states.
-    obs: Tensor,
-    /// pi_old at the N states.
-    policy: PolicyOutput,
-    /// `[P, M, N, D]` sampled actions, or `[P, A, N]` every action's index.
-    actions: Tensor,
-    /// `[P, M, N, C]` (`[P, A, N, C]`): Q' of `actions`.
-    q: Tensor,
-    /// `[P, N, C]`: the mean of `q` over the samples (pi_old-weighted, categorical).
-    v: Tensor,
-    /// `[P, A, N]`: log pi_old of every action (categorical only, for the exact E-step).
-    log_prior: Option<Tensor>,
-}
-
-impl TargetSamples {
-    /// Each member's states at its own rows, `index [P, R]`.
-    fn member_rows(self, index: &Tensor) -> Self {
-        Self {
-            obs: gather_states(&self.obs, index, 1),
-            policy: self.policy.member_rows(index),
-            actions: gather_states(&self.actions, index, 2),
-            q: gather_states(&self.q, index, 2),
-            v: gather_states(&self.v, index, 1),
-            log_prior: self.log_prior.map(|lp| gather_states(&lp, index, 2)),
-        }
-    }
-}
-
-/// The MO-MPO critics.
-struct QCritics<'a> {
-    online: &'a MultiCritic,
-    target: &'a MultiCritic,
-}
 
 /// What the E- and M-steps work on: the states the policy is fitted at, pi_old and
 /// its samples there with their Q_k, and how each member averages over the states.
@@ -180,145 +143,6 @@ impl Learner {
         })
     }
 
-    /// The online and target Q critics.
-    fn q_critics(&self) -> QCritics<'_> {
-        let Critics::Q { online, target, .. } = &self.nets.critics else {
-            unreachable!("MPO learners are built with Q critics")
-        };
-        QCritics { online, target }
-    }
-
-    /// Every member's Gaussian sampling noise for `n` states, `[P, M, n, D]`; none for
-    /// categorical policies, whose E-step sums over all actions.
-    fn sampling_noise(&mut self, n: i64) -> Result<Option<Tensor>, LearnerError> {
-        match self.dims.action {
-            ActionKind::Continuous { dim } => Ok(Some(self.member_noise(&[
-                self.cfg.mpo.num_samples,
-                n,
-                dim,
-            ])?)),
-            ActionKind::Discrete { .. } => Ok(None),
-        }
-    }
-
-    /// pi_old's samples at every state `obs [P, N, O]` and the target critic's scores
-    /// of them (C.2, eq. 15): Gaussian samples from `noise`, or every discrete action.
-    fn sample_target(&self, obs: Tensor, noise: Option<&Tensor>) -> TargetSamples {
-        let critic = self.q_critics().target;
-        let policy = self.nets.target_policy.forward_members(&obs, None);
-        match &policy {
-            PolicyOutput::Gaussian(g) => {
-                let noise = noise.expect("Gaussian policies have continuous actions");
-                let actions = g.mean.unsqueeze(1) + noise * g.std.unsqueeze(1);
-                let q = critic.forward_samples_members(&obs, &actions);
-                let v = q.mean_dim(1, false, Kind::Float);
-                TargetSamples {
-                    obs,
-                    policy,
-                    actions,
-                    q,
-                    v,
-                    log_prior: None,
-                }
-            }
-            PolicyOutput::Categorical(logits) => {
-                let q = critic.forward_all_actions_members(&obs);
-                let log_prior = logits.log_softmax(-1, Kind::Float).transpose(1, 2);
-                let v = (log_prior.exp().unsqueeze(-1) * &q).sum_dim_intlist(1, false, Kind::Float);
-                let size = logits.size();
-                let (p, n, a) = (size[0], size[1], size[2]);
-                let actions = Tensor::arange(a, (Kind::Int64, self.device))
-                    .reshape([1, a, 1])
-                    .expand([p, a, n], false);
-                TargetSamples {
-                    obs,
-                    policy,
-                    actions,
-                    q,
-                    v,
-                    log_prior: Some(log_prior),
-                }
-            }
-        }
-    }
-
-    /// Regresses the online critics on the Retrace targets of the taken pairs (0.5 *
-    /// squared error, mean over real pairs, summed over heads), one Adam step.
-    /// Returns each member's loss per head, `[P, C]`.
-    fn regress_critics(
-        &mut self,
-        batch: &SnippetBatch,
-        target: &TargetSamples,
-        shape: StepShape,
-    ) -> Tensor {
-        let (p, pairs) = (shape.members, shape.pairs());
-        let obs_taken = target.obs.narrow(1, 0, pairs);
-        let act_taken = batch.actions.flatten(1, 2);
-        let targets = tch::no_grad(|| self.retrace(batch, &obs_taken, &act_taken, target, shape));
-        let q_online = self
-            .q_critics()
-            .online
-            .forward_members(&obs_taken, &act_taken);
-        let per_head = masked_half_mse(&(q_online - &targets), &batch.valid.reshape([p, pairs]));
-        self.update_critics(&per_head.sum(Kind::Float));
-        per_head
-    }
-
-    /// Retrace targets (C.2, eq. 15) of the taken pairs, `[P, TB, C]`: the target
-    /// critic, the target policy's log-probabilities and c = min(1, pi_old/b).
-    fn retrace(
-        &self,
-        batch: &SnippetBatch,
-        obs_taken: &Tensor,
-        act_taken: &Tensor,
-        target: &TargetSamples,
-        shape: StepShape,
-    ) -> Tensor {
-        let (p, t_len, b, heads) = (shape.members, shape.t_len, shape.b, shape.heads);
-        let pairs = shape.pairs();
-        let v_next = target
-            .v
-            .reshape([p, t_len + 1, b, heads])
-            .narrow(1, 1, t_len);
-        let q_taken = match &target.log_prior {
-            // Every action's Q is scored already: the taken ones are a gather.
-            Some(_) => {
-                let index = act_taken
-                    .reshape([p, 1, pairs, 1])
-                    .expand([p, 1, pairs, heads], false);
-                target
-                    .q
-                    .narrow(2, 0, pairs)
-                    .gather(1, &index, false)
-                    .squeeze_dim(1)
-            }
-            None => self
-                .q_critics()
-                .target
-                .forward_members(obs_taken, act_taken),
-        }
-        .reshape([p, t_len, b, heads]);
-        let target_log_probs = target
-            .policy
-            .narrow_states(pairs)
-            .log_prob(act_taken)
-            .reshape([p, t_len, b]);
-        // c = 0 at padding cuts the trace exactly (PAD_LOG_PROB alone leaves ~e^-60).
-        let importance =
-            importance_weights(&target_log_probs, &batch.behaviour_log_probs) * &batch.valid;
-        // Retrace runs along time: members join the batch axis.
-        let time_first = |t: &Tensor| t.transpose(0, 1);
-        let targets = retrace_targets(&RetraceInputs {
-            q_taken: &time_first(&q_taken),
-            v_next: &time_first(&v_next),
-            rewards: &time_first(&self.critic_rewards(&batch.rewards)),
-            discounts: &time_first(&batch.discounts),
-            importance: &time_first(&importance),
-            gamma: self.cfg.mpo.discount,
-        });
-        time_first(&targets).reshape([p, pairs, heads])
-    }
-
     /// The E- and M-steps' inputs at the real states: the states acted from and those
     /// bootstrapped into from a real, non-terminal step. Padding and terminal
     /// observations are never acted from, so no policy is fitted there.
@@ -329,26 +153,37 @@ impl Learner {
         preferences: Option<StatePreferences>,
     ) -> Improvement {
         let real = real_states(&batch.valid, &batch.discounts);
-        let Some(index) = &real.index else {
-            return self.improvement(target, preferences, real.weight);
+        let preferences = match (&real.index, preferences) {
+            (Some(index), Some(pr)) => Some(pr.rows(&index.get(0), &self.conditioned_epsilon())),
+            (_, preferences) => preferences,
         };
-        let preferences = preferences.map(|pr| pr.rows(&index.get(0), &self.conditioned_epsilon()));
-        self.improvement(target.member_rows(index), preferences, real.weight)
+        self.improvement(target, real.index.as_ref(), preferences, real.weight)
     }
 
-    /// The E- and M-steps' inputs at the states of `target`.
+    /// The E- and M-steps' inputs at the states of `target`, or, given `rows` (`[P, R]`),
+    /// at each member's own rows of them. V is not needed there and not gathered.
     fn improvement(
         &self,
         target: TargetSamples,
+        rows: Option<&Tensor>,
         preferences: Option<StatePreferences>,
         state_weight: Tensor,
     ) -> Improvement {
+        let at = |t: Tensor, dim: i64| match rows {
+            Some(index) => gather_states(&t, index, dim),
+            None => t,
+        };
+        let policy = match rows {
+            Some(index) => target.policy.member_rows(index),
+            None => target.policy,
+        };
+        let actions = at(target.actions, 2);
         Improvement {
-            q: self.estep_q(&target.q, &target.actions),
-            obs: target.obs,
-            target: target.policy,
-            actions: target.actions,
-            log_prior: target.log_prior,
+            q: self.estep_q(&at(target.q, 2), &actions),
+            obs: at(target.obs, 1),
+            target: policy,
+            actions,
+            log_prior: target.log_prior.map(|lp| at(lp, 2)),
             preferences,
             state_weight,
         }
@@ -401,7 +236,7 @@ impl Learner {
     }
 
     /// Every member's sampling noise of `shape` for this step, `[P, ..shape]`.
-    fn member_noise(&mut self, shape: &[i64]) -> Result<Tensor, LearnerError> {
+    pub(super) fn member_noise(&mut self, shape: &[i64]) -> Result<Tensor, LearnerError> {
         let (device, step) = (self.device, self.step);
         let draws = self
             .noise
