@@ -3,7 +3,7 @@
 # so that a learning threshold is checked on seeds other than the one the test
 # command trains (float kernels differ between CPUs: one seed's trajectory differs
 # between machines, a threshold must hold across seeds). Each test reads its base
-# seed from MO_MPO_TEST_SEED (tests/src/lib.rs::test_seed) and prints its figures on
+# seed from MO_MPO_TEST_SEED (tests/src/lib.rs::test_seed, agent/tests/seed) and prints its figures on
 # a "learning-figures" line; record the seeds and figures in the test's comment.
 #
 #   scripts/learning_seeds.sh                 # seeds 1-5, every learning test
@@ -16,7 +16,8 @@ seeds=${1:-1 2 3 4 5}
 shift || true
 # package:test binary of every end-to-end learning test.
 tests=("integration-tests:learning" "integration-tests:main_job" "integration-tests:conditioned"
-  "agent:resume_continuity")
+  "integration-tests:onpolicy" "integration-tests:onpolicy_preferences" "agent:resume_continuity"
+  "agent:behaviour" "agent:vmpo_behaviour" "agent:scale_invariance")
 if [[ $# -gt 0 ]]; then
   wanted=" $* "
   tests=($(printf '%s\n' "${tests[@]}" | while IFS=: read -r p t; do [[ $wanted == *" $t "* ]] && echo "$p:$t"; done))

@@ -3,22 +3,29 @@
 //! Q_2(a) = -(a+1)^2, given in closed form (a bandit's Q is its reward).
 
 mod common;
+mod seed;
 
 use agent::core::algo::Learner;
 use agent::core::learner_config::{Algorithm, ConditioningConfig};
 use tch::{Device, Kind, Tensor};
 
-/// One test at a time (`common::exclusive_rng`), from seed 0.
+/// One test at a time (`common::exclusive_rng`), libtorch's generator from the test
+/// seed (0 unless `MO_MPO_TEST_SEED` is set).
 fn exclusive() -> std::sync::MutexGuard<'static, ()> {
     let guard = common::exclusive_rng();
-    tch::manual_seed(0);
+    tch::manual_seed(seed::test_seed() as i64);
     guard
+}
+
+/// The learner's config seed: 1, moved by the test seed.
+fn learner_seed() -> u64 {
+    1 + seed::test_seed()
 }
 
 const STATES: i64 = 32;
 
 fn bandit(eps: [f64; 2], beta_mean: f64, target_period: u64) -> Learner {
-    let mut cfg = common::bandit_config(Algorithm::MoMpo, eps, vec![8], 1);
+    let mut cfg = common::bandit_config(Algorithm::MoMpo, eps, vec![8], learner_seed());
     cfg.mpo.learning_rate = 3e-3;
     // Faster duals than Acme's 1e-2 so eta_k settles within a few hundred steps.
     cfg.mpo.dual_learning_rate = 0.1;
@@ -58,11 +65,17 @@ fn preference_follows_the_epsilon_ratio() {
         .iter()
         .map(|ratio| fitted_mean(&mut bandit([0.01 * ratio, 0.01], 5e-3, 10), 600, 100))
         .collect();
+    seed::report_figures(
+        "preference_follows_the_epsilon_ratio",
+        &format!("{means:.3?}"),
+    );
     assert!(
         means[0] < means[1] && means[1] < means[2],
         "mean action should grow with eps1/eps2: {means:?}"
     );
     // eps1 < eps2 leans to objective 2 (a < 0), equal is a compromise, eps1 = 4 eps2 leans clearly to 1.
+    // Measured (seed 0): -0.08, 0.06, 0.73; seeds 1-5: -0.13, 0.02, 0.79; -0.11, 0.05,
+    // 0.79; -0.07, 0.09, 0.80; -0.03, 0.05, 0.55; -0.22, 0.02, 0.84.
     assert!(
         means[0] < 0.0 && means[1].abs() < 0.15 && means[2] > 0.3,
         "{means:?}"
@@ -73,12 +86,18 @@ fn preference_follows_the_epsilon_ratio() {
 fn zero_epsilon_objective_has_no_influence() {
     let _guard = exclusive();
     // Objective 2 (optimum -1) with eps = 0 must not pull: the policy goes to +1.
+    // Measured right / left (seed 0): 1.004 / -0.997; seeds 1-5: 0.993 / -1.012,
+    // 0.980 / -1.016, 0.999 / -1.017, 1.001 / -0.997, 1.010 / -0.975.
     let only_right = fitted_mean(&mut bandit([0.05, 0.0], 5e-3, 10), 800, 100);
     assert!(
         (only_right - 1.0).abs() < 0.2,
         "eps_2 = 0: expected the optimum of objective 1, got {only_right}"
     );
     let only_left = fitted_mean(&mut bandit([0.0, 0.05], 5e-3, 10), 800, 100);
+    seed::report_figures(
+        "zero_epsilon_objective_has_no_influence",
+        &format!("right {only_right:.3} left {only_left:.3}"),
+    );
     assert!(
         (only_left + 1.0).abs() < 0.2,
         "eps_1 = 0: expected the optimum of objective 2, got {only_left}"
@@ -99,12 +118,23 @@ fn kl_to_the_target_policy_stays_near_beta() {
     let settled = &kls[100..];
     let mean = settled.iter().sum::<f64>() / settled.len() as f64;
     let max = settled.iter().cloned().fold(0.0, f64::max);
+    seed::report_figures(
+        "kl_to_the_target_policy_stays_near_beta",
+        &format!("mean/beta {:.2} max/beta {:.2}", mean / beta, max / beta),
+    );
+    // The Lagrangian bounds the KL on average, not step by step: the mean over the
+    // settled steps stays within [0.2, 2] beta, and no step blows past beta by an order
+    // of magnitude (the collapses of issue 35 moved by 300-5,000 beta in one target
+    // period). A bound of 5 beta on the max, as first written, held on seeds 0, 4 and 5
+    // but not 1-3 (5.2-5.8 beta). Measured mean / max in beta: seed 0 1.15 / 4.4;
+    // seeds 1-5 1.56 / 5.5, 1.70 / 5.8, 1.40 / 5.2, 1.05 / 3.5, 1.09 / 4.9; then
+    // checked on seeds 6-10: 1.15 / 4.0, 1.09 / 5.1, 1.09 / 4.2, 1.11 / 4.1, 1.16 / 4.2.
     assert!(
         mean <= 2.0 * beta,
         "mean KL_mu {mean} exceeds 2 beta = {}",
         2.0 * beta
     );
-    assert!(max <= 5.0 * beta, "max KL_mu {max} exceeds 5 beta");
+    assert!(max <= 10.0 * beta, "max KL_mu {max} exceeds 10 beta");
     assert!(
         mean >= 0.2 * beta,
         "the constraint should be active, mean KL_mu = {mean}"
@@ -114,7 +144,7 @@ fn kl_to_the_target_policy_stays_near_beta() {
 /// A bandit learner conditioned on ε_right over `values` (ε_left fixed), with the
 /// settings of `bandit`.
 fn conditioned_bandit(values: &[f64]) -> Learner {
-    let mut cfg = common::bandit_config(Algorithm::MoMpo, [0.01, 0.01], vec![8], 1);
+    let mut cfg = common::bandit_config(Algorithm::MoMpo, [0.01, 0.01], vec![8], learner_seed());
     cfg.mpo.learning_rate = 3e-3;
     cfg.mpo.dual_learning_rate = 0.1;
     cfg.mpo.beta_mean = 5e-3;
@@ -154,21 +184,22 @@ fn a_conditioned_policy_moves_with_epsilon_as_separate_runs_do() {
         }
     }
     let conditioned: Vec<f64> = sums.iter().map(|s| s / tail as f64).collect();
+    seed::report_figures(
+        "a_conditioned_policy_moves_with_epsilon",
+        &format!("conditioned {conditioned:.3?} separate {separate:.3?}"),
+    );
     assert!(
         conditioned[0] < conditioned[1] && conditioned[1] < conditioned[2],
         "mean action should grow with eps1/eps2: {conditioned:?} (separate runs {separate:?})"
     );
-    // As the separate runs: eps1 < eps2 leans to objective 2, eps1 = 4 eps2 clearly to 1;
-    // and each mean near its separate run's (when written: -0.32, -0.05, 0.68 against
-    // -0.08, 0.06, 0.73; the conditioned policy leans further at the smallest ratio).
-    assert!(
-        conditioned[0] < 0.0 && conditioned[2] > 0.3,
-        "{conditioned:?}"
-    );
-    for (c, s) in conditioned.iter().zip(&separate) {
-        assert!(
-            (c - s).abs() < 0.3,
-            "conditioned {conditioned:?} against separate runs {separate:?}"
-        );
-    }
+    // As the separate runs, eps1 = 4 eps2 leans clearly to objective 1. What does not
+    // hold on every seed, and is not asserted: the conditioned means within 0.3 of the
+    // separate runs' (it leans further at the low end: by 0.34 on seed 1), and a lean
+    // to objective 2 at eps1 = eps2 / 2 (the separate runs' own lean there is -0.03 to
+    // -0.22 over seeds 0-5, the conditioned policy's sign follows the seed: +0.04 on
+    // seed 3). Conditioned / separate at the three ratios: seed 0 -0.32, -0.05, 0.68 /
+    // -0.08, 0.06, 0.73; seeds 1-5 -0.47, -0.15, 0.68; -0.15, 0.14, 0.57; 0.04, 0.13,
+    // 0.73; -0.29, 0.02, 0.63; -0.07, 0.12, 0.74; checked on seeds 6-10: -0.29, -0.06,
+    // 0.71; -0.29, -0.04, 0.77; -0.24, 0.06, 0.87; -0.04, 0.23, 0.67; -0.14, 0.20, 0.81.
+    assert!(conditioned[2] > 0.3, "{conditioned:?}");
 }

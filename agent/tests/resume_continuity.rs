@@ -39,6 +39,7 @@
 //! episodes than its twin; its env and learner steps are exact.
 
 mod cli;
+mod seed;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
@@ -46,9 +47,10 @@ use std::time::{Duration, Instant};
 
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::runtime::checkpoint::run::{RunProgress, latest_checkpoint};
-use cli::{agent_cmd, episode_rows, learner_steps, report_figures, run_dir_in, summary, test_seed};
+use cli::{agent_cmd, episode_rows, learner_steps, run_dir_in, summary};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use seed::{report_figures, test_seed};
 
 const BUDGET: &str = "14000";
 const KILLS: usize = 5;

@@ -10,6 +10,7 @@
 //! relative and the catch-up takes about ln(100) / 0.1 ~ 46 steps.
 
 mod common;
+mod seed;
 
 use agent::core::algo::{Learner, SnippetBatch};
 use agent::core::learner_config::{Algorithm, TemperatureParameterization};
@@ -22,8 +23,13 @@ const STEPS: usize = 2000;
 const TAIL: usize = 200;
 
 fn bandit(kind: TemperatureParameterization) -> Learner {
-    tch::manual_seed(0);
-    let mut cfg = common::bandit_config(Algorithm::MoMpo, [0.04, 0.01], vec![32, 32], 1);
+    tch::manual_seed(seed::test_seed() as i64);
+    let mut cfg = common::bandit_config(
+        Algorithm::MoMpo,
+        [0.04, 0.01],
+        vec![32, 32],
+        1 + seed::test_seed(),
+    );
     cfg.mpo.learning_rate = 3e-3;
     cfg.mpo.dual_learning_rate = 0.1;
     cfg.mpo.temperature_parameterization = kind;
@@ -95,7 +101,13 @@ fn a_rescaled_objective_does_not_move_the_policy_with_log_temperatures() {
     tch::set_num_threads(1);
     let log = TemperatureParameterization::Log;
     let (plain, scaled) = (improved(log, 1.0, STEPS), improved(log, 100.0, STEPS));
+    seed::report_figures(
+        "policy_improvement",
+        &format!("x1 {plain:.3} x100 {scaled:.3}"),
+    );
     // eps_right = 4 eps_left: the policy leans right, and equally so at either scale.
+    // Measured x1 / x100 (seed 0): 0.842 / 0.850; seeds 1-5: 0.839 / 0.873, 0.837 /
+    // 0.849, 0.826 / 0.879, 0.844 / 0.858, 0.939 / 0.930.
     assert!(plain > 0.3, "mean action {plain}");
     assert!(
         (plain - scaled).abs() < 0.1,
@@ -109,6 +121,9 @@ fn a_rescaled_objective_does_not_move_the_full_learner_with_log_temperatures() {
     tch::set_num_threads(1);
     let log = TemperatureParameterization::Log;
     let (plain, scaled) = (learned(log, 1.0, STEPS), learned(log, 100.0, STEPS));
+    // Measured x1 / x100 (seed 0): 0.864 / 0.847; seeds 1-5: 0.896 / 0.897, 0.885 /
+    // 0.891, 0.890 / 0.894, 0.829 / 0.821, 0.914 / 0.916.
+    seed::report_figures("full_learner", &format!("x1 {plain:.3} x100 {scaled:.3}"));
     assert!(plain > 0.3, "mean action {plain}");
     assert!(
         (plain - scaled).abs() < 0.1,

@@ -9,7 +9,7 @@ use std::path::Path;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::runtime::run_config::TrainConfig;
 use agent::runtime::train::{TrainOptions, TrainSummary, train};
-use integration_tests::{episode_column, mean};
+use integration_tests::{episode_column, mean, report_figures, test_seed, with_seed};
 
 static ONE_RUN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
@@ -31,7 +31,7 @@ impl Trained {
 async fn run(server: &LocalServer, name: &str, change: impl FnOnce(&mut TrainConfig)) -> Trained {
     let runs = tempfile::tempdir().unwrap();
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../configs/smoke/{name}.toml"));
-    let mut cfg = TrainConfig::load(&path).unwrap();
+    let mut cfg = with_seed(TrainConfig::load(&path).unwrap(), test_seed());
     cfg.run.runs_dir = runs.path().to_path_buf();
     change(&mut cfg);
     let summary = train(
@@ -55,8 +55,11 @@ async fn scalarized_vmpo_on_dst_learns_its_weighted_return() {
     let summary = &trained.summary;
     assert_eq!(summary.env_steps, 12000);
     // w = (time 1, treasure 0.1): the random start wanders before it finds a treasure;
-    // the trained policy heads for the nearest one (measured when written: -3.94 over
-    // the first 200 episodes, -1.02 over the last 200, -0.93 deterministic).
+    // the trained policy heads for the nearest one. Scalarized return over the first /
+    // last 200 episodes, seed 0: -3.94 / -1.02; seeds 1-5: -3.28 / -1.02, -15.16 /
+    // -1.70, -7.40 / -1.33, -8.54 / -1.17, -6.31 / -1.25; seeds 6-10: -6.19 / -1.12,
+    // -7.05 / -1.13, -4.52 / -1.16, -7.21 / -1.26, -4.49 / -1.09; -0.93 deterministic
+    // on all eleven.
     let time = episode_column(&summary.run_dir, "return_time");
     let treasure = episode_column(&summary.run_dir, "return_treasure");
     let scalarized: Vec<f64> = time
@@ -78,8 +81,9 @@ async fn scalarized_vmpo_on_dst_learns_its_weighted_return() {
         "scalarized return did not improve: first {first:.2}, last {last:.2}"
     );
     let eval = trained.eval("time") + 0.1 * trained.eval("treasure");
-    eprintln!(
-        "scalarized return: first 200 episodes {first:.2}, last 200 {last:.2}, eval {eval:.2}"
+    report_figures(
+        "scalarized_vmpo_on_dst",
+        &format!("scalarized return first {first:.2} last {last:.2} eval {eval:.2}"),
     );
     assert!(
         eval > last - 1.0,
@@ -101,6 +105,9 @@ async fn movmpo_on_dst_reaches_a_farther_treasure_with_a_larger_epsilon_ratio() 
     let mut treasure = Vec::new();
     for (eps_treasure, eps_time) in [(0.01, 0.5), (0.5, 0.01)] {
         let trained = run(&server, "dst-movmpo", |cfg| {
+            // 376 learner steps: at the smoke config's 94 the ratio-0.02 run had not
+            // settled on the nearest treasure on seeds 2-5 (seed 2: both ratios 11.5).
+            cfg.run.total_env_steps = 48_000;
             epsilon(cfg, "treasure", eps_treasure);
             epsilon(cfg, "time", eps_time);
         })
@@ -108,9 +115,13 @@ async fn movmpo_on_dst_reaches_a_farther_treasure_with_a_larger_epsilon_ratio() 
         treasure.push(trained.eval("treasure"));
     }
     let (small, large) = (treasure[0], treasure[1]);
-    eprintln!("treasure reached: ratio 0.02 -> {small}, ratio 50 -> {large}");
-    // The ten treasures are 0.7 (one step away) to 23.7 (19 steps). Measured when
-    // written: ratio 0.02 reaches 0.7, ratio 50 reaches 8.2 (three steps away).
+    report_figures(
+        "movmpo_epsilon_ratio",
+        &format!("treasure reached: ratio 0.02 -> {small}, ratio 50 -> {large}"),
+    );
+    // The ten treasures are 0.7 (one step away) to 23.7 (19 steps). Measured: ratio
+    // 0.02 reaches 0.7 and ratio 50 reaches 11.5 (five steps away) on seeds 0-5, and on
+    // seeds 6-10, checked after the budget was chosen (seed 9: 8.2 and 11.5).
     assert!(
         large > small,
         "eps_treasure / eps_time = 50 reached treasure {large}, = 0.02 reached {small}"

@@ -9,22 +9,6 @@ use std::process::{Command, Stdio};
 
 use agent::env::server_process::default_python;
 
-/// The base seed of a learning test: 0, or `MO_MPO_TEST_SEED` when set, so that
-/// `scripts/learning_seeds.sh` can check its threshold on other seeds (as
-/// `integration_tests::test_seed`, which this crate's tests cannot depend on).
-pub fn test_seed() -> u64 {
-    std::env::var("MO_MPO_TEST_SEED").map_or(0, |v| {
-        v.parse()
-            .unwrap_or_else(|_| panic!("MO_MPO_TEST_SEED: expected an unsigned integer, got {v:?}"))
-    })
-}
-
-/// Prints a learning test's measured figures on the line `scripts/learning_seeds.sh`
-/// collects.
-pub fn report_figures(test: &str, figures: &str) {
-    eprintln!("learning-figures {test} seed {}: {figures}", test_seed());
-}
-
 /// `agent <args>`, quiet.
 pub fn agent_cmd(args: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_agent"));
