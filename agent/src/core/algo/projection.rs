@@ -21,6 +21,7 @@
 use super::estep::StateMean;
 use super::mstep::{KlConstraint, trust_region_kl};
 use crate::core::nets::{Members, PolicyOutput};
+use std::collections::HashMap;
 use tch::{Kind, Tensor, nn};
 
 /// Halvings after the first shortening before a member is put at its target.
@@ -75,22 +76,28 @@ pub fn kl_ratio(
     }
 }
 
-/// The policy's displacement from its target, shortened member by member.
-struct Displacement<'a> {
+/// The policy's displacement from a start (its target here, the step's start in
+/// `vmpo_trust`), shortened member by member: the one line search both trust
+/// regions move along.
+pub(super) struct Displacement<'a> {
     online: &'a nn::VarStore,
-    /// (name, target value, online - target) per variable.
+    /// (name, start value, online - start) per variable.
     parts: Vec<(String, Tensor, Tensor)>,
     members: Members,
 }
 
 impl<'a> Displacement<'a> {
-    fn of(online: &'a nn::VarStore, target: &nn::VarStore, members: Members) -> Self {
-        let target = target.variables();
+    /// From `start` (the policy's variables by name) to `online`'s current values.
+    pub(super) fn of(
+        online: &'a nn::VarStore,
+        start: &HashMap<String, Tensor>,
+        members: Members,
+    ) -> Self {
         let parts = online
             .variables()
             .into_iter()
             .map(|(name, now)| {
-                let at = target[&name].detach();
+                let at = start[&name].detach();
                 let away = (&now - &at).detach();
                 (name, at, away)
             })
@@ -102,8 +109,9 @@ impl<'a> Displacement<'a> {
         }
     }
 
-    /// Puts each member's policy at `target + scale_p * (online - target)`, `scale [P]`.
-    fn keep(&self, scale: &Tensor) {
+    /// Puts each member's policy at `start + scale_p * (online - start)`, `scale [P]`
+    /// (float, on the policy's device).
+    pub(super) fn keep(&self, scale: &Tensor) {
         let now = self.online.variables();
         tch::no_grad(|| {
             for (name, at, away) in &self.parts {
@@ -151,7 +159,7 @@ pub fn project(
     if !any(&outside) {
         return ones;
     }
-    let displacement = Displacement::of(online, target, members);
+    let displacement = Displacement::of(online, &target.variables(), members);
     let first = (ratio.to_kind(Kind::Float).reciprocal() * (0.81 * max_ratio))
         .sqrt()
         .clamp_max(1.0);

@@ -6,7 +6,8 @@
 //! the KL of each part (KL_mu and KL_Sigma of eqs. 18-20, or the categorical KL) at the
 //! step's real states, and a member whose KL exceeds a beta gets its policy
 //! parameters pulled back along the segment from the step's start to its end,
-//! `theta(t) = theta_start + t (theta_end - theta_start)`, as TRPO's line search does:
+//! `theta(t) = theta_start + t (theta_end - theta_start)` (`projection::Displacement`,
+//! which MPO's projection moves along from the target policy), as TRPO's line search does:
 //! near t = 0 the KL grows as t^2, so each trial takes `t <- 0.9 t sqrt(1 / r)`
 //! (r the largest ratio KL / beta, the factor kept in [0.1, 0.9]) until every part is
 //! within its beta, and after `TRIALS` trials the step's start. The start is pi_old
@@ -19,17 +20,19 @@
 
 use super::estep::StateMean;
 use super::mstep::{KlConstraint, decoupled_kl};
+use super::projection::Displacement;
 use super::real_states::{RealStates, gather_states, real_rows};
 use super::state::Learner;
 use crate::core::nets::{GaussianParams, PolicyOutput};
 use crate::core::random::{Purpose, StreamKey};
+use std::collections::HashMap;
 use tch::{Kind, Tensor};
 
 /// Line-search trials before falling back to the step's start.
 const TRIALS: usize = 8;
 
 /// The policy's parameters by name, copied.
-pub(super) type Parameters = Vec<(String, Tensor)>;
+pub(super) type Parameters = HashMap<String, Tensor>;
 
 /// A step's end, measured (and projected when configured).
 #[derive(Debug)]
@@ -40,38 +43,14 @@ pub(super) struct StepEnd {
 }
 
 impl Learner {
-    /// A copy of the online policy's parameters, sorted by name.
+    /// A copy of the online policy's parameters.
     pub(super) fn policy_parameters(&self) -> Parameters {
-        let mut named: Parameters = self
-            .nets
+        self.nets
             .policy_vs
             .variables()
             .into_iter()
             .map(|(name, t)| (name, t.detach().copy()))
-            .collect();
-        named.sort_by(|a, b| a.0.cmp(&b.0));
-        named
-    }
-
-    /// Sets the policy to `start + t_p (end - start)` for each member p.
-    fn interpolate(&mut self, start: &Parameters, end: &Parameters, t: &[f64]) {
-        let vars = self.nets.policy_vs.variables();
-        let stacked = self.members.count() > 1;
-        let device = self.device;
-        tch::no_grad(|| {
-            for ((name, s), (_, e)) in start.iter().zip(end) {
-                let mut var = vars[name].shallow_clone();
-                let mut shape = vec![1i64; var.dim()];
-                if stacked {
-                    shape[0] = t.len() as i64;
-                }
-                let factor = Tensor::from_slice(t)
-                    .to_kind(Kind::Float)
-                    .to_device(device)
-                    .reshape(shape.as_slice());
-                var.copy_(&(s + (e - s) * factor));
-            }
-        });
+            .collect()
     }
 
     /// KL(pi_old || pi) at the states `obs [P, R, obs]`: the reported parts `[P,
@@ -152,7 +131,7 @@ impl Learner {
         if ratio.iter().all(|&r| r <= 1.0) {
             return StepEnd { kl };
         }
-        let end = self.policy_parameters();
+        let displacement = Displacement::of(&self.nets.policy_vs, start, self.members);
         for trial in 0..=TRIALS {
             let over: Vec<bool> = ratio.iter().map(|&r| r > 1.0).collect();
             if !over.contains(&true) {
@@ -166,7 +145,8 @@ impl Learner {
                     };
                 }
             }
-            self.interpolate(start, &end, &kept);
+            let scale = Tensor::from_slice(&kept).to_kind(Kind::Float);
+            displacement.keep(&scale.to_device(self.device));
             let (now, now_ratio) = self.step_kl(&obs, noise.as_ref(), &real);
             let now_ratio: Vec<f64> = Vec::try_from(&now_ratio.to_kind(Kind::Double)).expect("[P]");
             // Members already within their betas keep their parameters and measures;
