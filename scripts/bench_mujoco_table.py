@@ -143,8 +143,12 @@ def draw(task: str, task_runs: dict[tuple, list[dict]], out: pathlib.Path) -> No
         d.text((x0 + pw / 2, mt + ph + 22), "env steps", fill="black", font=font, anchor="mt")
         for (_, _, method, _), run in task_runs.items():
             line = [px(int(r["env_steps"]), float(r[column])) for r in run if r[column] != ""]
+            colour = COLOURS[methods.index(method) % len(COLOURS)]
             if len(line) > 1:
-                d.line(line, fill=COLOURS[methods.index(method) % len(COLOURS)], width=2)
+                d.line(line, fill=colour, width=2)
+            # A marker at each evaluation, so that a run evaluated once shows too.
+            for x, y in line:
+                d.ellipse([x - 3, y - 3, x + 3, y + 3], fill=colour)
     for k, method in enumerate(methods):
         x, y = ml + 10 + 120 * k, img.height - 14
         d.line([(x, y), (x + 18, y)], fill=COLOURS[k % len(COLOURS)], width=3)

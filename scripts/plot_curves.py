@@ -90,9 +90,14 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
 
 
 def label(v: float) -> str:
-    if v != 0 and (abs(v) >= 1e4 or abs(v) < 1e-2):
-        return f"{v:.0e}"
-    return f"{v:g}"
+    """A tick value, short but distinct from its neighbours: ticks are round multiples
+    of their step, so `g`'s significant digits keep them apart (one digit of an
+    exponent form made 64,000 and 64,500 both "6e+04")."""
+    if abs(v) >= 1e6:
+        return f"{v / 1e6:g}M"
+    if abs(v) >= 1e4:
+        return f"{v / 1e3:g}k"
+    return f"{round(v, 12):g}"
 
 
 def main() -> None:
