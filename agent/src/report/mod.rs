@@ -2,6 +2,7 @@
 //! files, figures (`plot`), videos, Pareto-front measures (`pareto`) and fronts
 //! (`front`). Imports the core and the env boundary, never the runtime above it.
 
+pub(crate) mod font;
 pub mod front;
 pub mod metrics;
 pub mod pareto;

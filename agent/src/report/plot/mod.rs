@@ -4,7 +4,6 @@
 //! system font libraries.
 
 use std::path::{Path, PathBuf};
-use std::sync::Once;
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -75,19 +74,9 @@ pub enum PlotError {
     Empty(PathBuf),
 }
 
-static FONT: Once = Once::new();
-
-fn register_font() {
-    FONT.call_once(|| {
-        let bytes: &'static [u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
-        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
-            .unwrap_or_else(|_| panic!("embedded DejaVuSans.ttf is a valid font"));
-    });
-}
-
 /// Write `<stem>.png` and `<stem>.svg`; returns both paths.
 pub fn save(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
-    register_font();
+    crate::report::font::register();
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
     let err = |path: &Path| {

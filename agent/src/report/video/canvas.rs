@@ -2,8 +2,6 @@
 //! episode, step and the objectives' running returns written under it (plotters'
 //! bitmap backend with the embedded DejaVu Sans, as the figures use).
 
-use std::sync::Once;
-
 use plotters::prelude::*;
 
 use super::VideoError;
@@ -35,16 +33,6 @@ pub struct Layout {
 const BACKGROUND: RGBColor = RGBColor(18, 18, 24);
 const TEXT: RGBColor = RGBColor(235, 235, 235);
 
-static FONT: Once = Once::new();
-
-fn register_font() {
-    FONT.call_once(|| {
-        let bytes: &'static [u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
-        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
-            .unwrap_or_else(|_| panic!("embedded DejaVuSans.ttf is a valid font"));
-    });
-}
-
 impl Layout {
     /// `tiles` frames of `tile_width` x `tile_height` in a near-square grid, each with
     /// room for a title and `objectives` lines of text under it.
@@ -67,7 +55,7 @@ impl Layout {
 
     /// The video frame (RGB bytes, `height * width * 3`) for `frames`, one caption each.
     pub fn compose(&self, frames: &Frames, captions: &[Caption]) -> Result<Vec<u8>, VideoError> {
-        register_font();
+        crate::report::font::register();
         let mut canvas = vec![0u8; self.width * self.height * 3];
         for pixel in canvas.chunks_exact_mut(3) {
             pixel.copy_from_slice(&[BACKGROUND.0, BACKGROUND.1, BACKGROUND.2]);
