@@ -39,8 +39,6 @@
 //! episodes than its twin; its env and learner steps are exact.
 
 mod cli;
-// The seed helpers moved here from cli/ (issue 35); the bars and their record of the
-// seeds they held for (seeds 1-5, below) are unchanged.
 mod seed;
 
 use std::path::{Path, PathBuf};
@@ -198,7 +196,9 @@ async fn a_pendulum_run_killed_five_times_learns_as_an_uninterrupted_one() {
     let returns = task_returns(&run);
     assert_eq!(returns.len() as u64, last["episodes"].as_u64().unwrap());
 
-    // Learning goes on across each resume.
+    // Learning goes on across each resume. This bar and the two below held for seeds
+    // 1-5 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh); the solves and finals
+    // they compare are recorded at the last assert.
     for &at in &resumed_at {
         assert!(
             at >= WINDOW && at + WINDOW <= returns.len(),
@@ -245,9 +245,9 @@ async fn a_pendulum_run_killed_five_times_learns_as_an_uninterrupted_one() {
         killed.is_some_and(|k| k <= 2 * slowest),
         "killed run solved at {killed:?} env steps, uninterrupted runs at {reference_solves:?}"
     );
-    // Every bar here held for seeds 1-5 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh),
-    // killed run's solve / final
-    // against the uninterrupted runs' solves and finals (seeds s, s + 1, s + 2):
+    // Held for seeds 1-5 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh). Per base
+    // seed s, the killed run's solve / final against the uninterrupted runs' solves and
+    // finals (seeds s, s + 1, s + 2):
     // 0: 8,200 / -153.7 against 4,800 5,600 7,200 / -151.8 -140.8 -166.1;
     // 1: 5,600 / -140.8 against 5,600 7,200 5,200 / -140.8 -166.1 -181.3;
     // 2: 7,800 / -166.7 against 7,200 5,200 5,600 / -166.1 -181.3 -206.4;

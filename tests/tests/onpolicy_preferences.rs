@@ -56,8 +56,8 @@ async fn scalarized_vmpo_on_dst_learns_its_weighted_return() {
     assert_eq!(summary.env_steps, 12000);
     // w = (time 1, treasure 0.1): the random start wanders before it finds a treasure;
     // the trained policy heads for the nearest one. Every bar here held for seeds 1-5 and
-    // 6-10 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh). Scalarized return over the first /
-    // last 200 episodes, seed 0: -3.94 / -1.02; seeds 1-5: -3.28 / -1.02, -15.16 /
+    // 6-10 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh). Scalarized return
+    // over the first / last 200 episodes, seed 0: -3.94 / -1.02; seeds 1-5: -3.28 / -1.02, -15.16 /
     // -1.70, -7.40 / -1.33, -8.54 / -1.17, -6.31 / -1.25; seeds 6-10: -6.19 / -1.12,
     // -7.05 / -1.13, -4.52 / -1.16, -7.21 / -1.26, -4.49 / -1.09; -0.93 deterministic
     // on all eleven.
@@ -107,7 +107,9 @@ async fn movmpo_on_dst_reaches_a_farther_treasure_with_a_larger_epsilon_ratio() 
     for (eps_treasure, eps_time) in [(0.01, 0.5), (0.5, 0.01)] {
         let trained = run(&server, "dst-movmpo", |cfg| {
             // 376 learner steps: at the smoke config's 94 the ratio-0.02 run had not
-            // settled on the nearest treasure on seeds 2-5 (seed 2: both ratios 11.5).
+            // settled on the nearest treasure on seeds 2-5 (seed 2: both ratios 11.5);
+            // at 376 the bar below held for seeds 1-5 and 6-10 (and 0; MO_MPO_TEST_SEED,
+            // scripts/learning_seeds.sh).
             cfg.run.total_env_steps = 48_000;
             epsilon(cfg, "treasure", eps_treasure);
             epsilon(cfg, "time", eps_time);
@@ -121,8 +123,8 @@ async fn movmpo_on_dst_reaches_a_farther_treasure_with_a_larger_epsilon_ratio() 
         &format!("treasure reached: ratio 0.02 -> {small}, ratio 50 -> {large}"),
     );
     // The ten treasures are 0.7 (one step away) to 23.7 (19 steps). This bar held for
-    // seeds 1-5 and 6-10 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh). Measured: ratio
-    // 0.02 reaches 0.7 and ratio 50 reaches 11.5 (five steps away) on seeds 0-5, and on
+    // seeds 1-5 and 6-10 (and 0; MO_MPO_TEST_SEED, scripts/learning_seeds.sh).
+    // Measured: ratio 0.02 reaches 0.7 and ratio 50 reaches 11.5 (five steps away) on seeds 0-5, and on
     // seeds 6-10, checked after the budget was chosen (seed 9: 8.2 and 11.5).
     assert!(
         large > small,
