@@ -2,7 +2,8 @@
 """The MuJoCo benchmark's table, stability check and curves, from its results file.
 
     python scripts/bench_mujoco_table.py [--results docs/benchmarks/mujoco-results.csv]
-        [--session ID] [--plots docs/benchmarks] [--ref-undiscounted TASK=X:Y]
+        [--session ID[,ID..]] [--plots docs/benchmarks] [--ref-undiscounted TASK=X:Y]
+        [--per-evaluation]
 
 One markdown row per task, session and method: the seeds' medians (range) of the final
 deterministic evaluation (return; on two-objective tasks the hypervolumes of the front,
@@ -15,7 +16,10 @@ score v is at least its best so far b minus 20% of |b| (v >= b - 0.2 |b|: 80% of
 b > 0; for a negative best, at most 20% of its magnitude worse, e.g. b = -150 allows
 -180). The score is the return, or the discounted hypervolume. The runs that fail are
 listed below the table. --plots DIR draws DIR/mujoco-TASK.png per task: each run's
-evaluations against env steps, coloured by method ("" draws none).
+evaluations against env steps, coloured by method ("" draws none). --per-evaluation
+prints, instead of the summary, every run's evaluations: a table per set of evaluation
+points, a row per task, seed and method (two-objective tasks: a row per hypervolume,
+discounted in thousands and undiscounted in millions), the final evaluation in bold.
 """
 
 from __future__ import annotations
@@ -114,6 +118,33 @@ def table(by_run: dict[tuple, list[dict]]) -> list[str]:
     return lines
 
 
+def per_evaluation(by_run: dict[tuple, list[dict]]) -> list[str]:
+    """Each run's evaluations, one table per set of evaluation points."""
+    tables: dict[tuple, list[tuple]] = {}
+    for key, run in by_run.items():
+        steps = tuple(int(r["env_steps"]) for r in run if r["kind"] == "eval")
+        tables.setdefault(steps, []).append(key)
+    lines: list[str] = []
+    for steps, keys in sorted(tables.items()):
+        head = [f"{s / 1000:g}k" for s in steps]
+        lines += ["", "| task, seed | method | " + " | ".join(head) + " | final | wall s |"]
+        lines.append("|" + "---|" * (len(steps) + 4))
+        order = sorted(keys, key=lambda k: (TASKS.index(k[0]) if k[0] in TASKS else 9, k[3], k[2] != OURS, k[1]))
+        for task, session, method, seed in order:
+            run = by_run[task, session, method, seed]
+            scores = [("", "return", 1.0)]
+            if task in results.REFERENCES:
+                scores = [(", HV disc. (k)", "hv_discounted", 1e3), (", HV undisc. (M)", "hv_undiscounted", 1e6)]
+            for n, (suffix, column, unit) in enumerate(scores):
+                fmt = "{:.0f}" if unit == 1.0 else ("{:.1f}" if unit == 1e3 else "{:.2f}")
+                cell = lambda r: fmt.format(float(r[column]) / unit).replace("-", "−") if r[column] else ""  # noqa: E731
+                cells = [f"{task.removesuffix('-v5')}, {seed}", method + suffix]
+                cells += [cell(r) for r in run if r["kind"] == "eval"]
+                cells += [f"**{cell(run[-1])}**", f"{float(run[-1]['wall_s']):.0f}" if n == 0 else ""]
+                lines.append("| " + " | ".join(cells) + " |")
+    return lines[1:]
+
+
 def draw(task: str, task_runs: dict[tuple, list[dict]], out: pathlib.Path) -> None:
     """One panel per score (return; or HV discounted and undiscounted), a line per run."""
     columns = ["return"] if task not in results.REFERENCES else ["hv_discounted", "hv_undiscounted"]
@@ -161,8 +192,9 @@ def draw(task: str, task_runs: dict[tuple, list[dict]], out: pathlib.Path) -> No
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", type=pathlib.Path, default=pathlib.Path("docs/benchmarks/mujoco-results.csv"))
-    ap.add_argument("--session", default="", help="only this session's runs")
+    ap.add_argument("--session", default="", help="only these sessions' runs (comma-separated)")
     ap.add_argument("--plots", default="docs/benchmarks", help='folder for the curves ("" draws none)')
+    ap.add_argument("--per-evaluation", action="store_true", help="print every run's evaluations instead")
     ap.add_argument(
         "--ref-undiscounted",
         action="append",
@@ -171,7 +203,8 @@ def main() -> None:
         help="recompute the undiscounted HV at this reference from the stored fronts",
     )
     args = ap.parse_args()
-    rows = [r for r in results.read(args.results) if not args.session or r["session"] == args.session]
+    sessions = set(filter(None, args.session.split(",")))
+    rows = [r for r in results.read(args.results) if not sessions or r["session"] in sessions]
     for spec in args.ref_undiscounted:
         task, _, ref = spec.partition("=")
         point = tuple(float(v) for v in ref.split(":"))
@@ -180,6 +213,9 @@ def main() -> None:
                 r["hv_undiscounted"] = results.hypervolume(results.parse_points(r["front"]), point)
                 r["ref_undiscounted"] = results.format_ref(point)
     by_run = runs(rows)
+    if args.per_evaluation:
+        print("\n".join(per_evaluation(by_run)))
+        return
     refs = sorted({f"{r['task']} {r['ref_discounted']} / {r['ref_undiscounted']}" for r in rows if r["front"]})
     print("\n".join(table(by_run)))
     if refs:

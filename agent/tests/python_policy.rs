@@ -121,21 +121,19 @@ async fn a_dst_policy_in_pytorch_acts_and_returns_as_the_agent() {
     agent_and_python_agree(cfg, &server, &observations(64, 2, 10.0), "json", None).await;
 }
 
-/// `configs/mompo/<file>` cut to 1,600 env steps and one evaluation episode, its runs
-/// under `dir/runs`.
-fn short_pendulum(file: &str, dir: &Path) -> TrainConfig {
+/// `configs/mompo/<file>` cut to 1,600 env steps and one evaluation episode, with
+/// `more` settings, its runs under `dir/runs`.
+fn short_pendulum(file: &str, dir: &Path, more: &[&str]) -> TrainConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../configs/mompo")
         .join(file);
-    let mut cfg = TrainConfig::load_with(
-        &path,
-        &[
-            "run.total_env_steps=1600".into(),
-            "run.min_replay_transitions=400".into(),
-            "run.eval_episodes=1".into(),
-        ],
-    )
-    .unwrap();
+    let mut sets = vec![
+        "run.total_env_steps=1600".to_string(),
+        "run.min_replay_transitions=400".into(),
+        "run.eval_episodes=1".into(),
+    ];
+    sets.extend(more.iter().map(|s| s.to_string()));
+    let mut cfg = TrainConfig::load_with(&path, &sets).unwrap();
     cfg.run.runs_dir = dir.join("runs");
     cfg
 }
@@ -144,7 +142,7 @@ fn short_pendulum(file: &str, dir: &Path) -> TrainConfig {
 async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
-    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path());
+    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path(), &[]);
     // The env's (cos θ, sin θ, θ') only: both sides append the feature of ε_action_norm
     // 0.02, between grid points, and a Gaussian mean moves with any change of its input,
     // so a feature computed differently shows in the actions.
@@ -156,8 +154,17 @@ async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent(
 async fn a_pendulum_policy_in_pytorch_acts_and_returns_as_the_agent() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
-    let cfg = short_pendulum("pendulum.toml", runs.path());
+    let cfg = short_pendulum("pendulum.toml", runs.path(), &[]);
     // Pendulum observes (cos θ, sin θ, θ') with |θ'| <= 8: a wider range saturates tanh.
+    agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy", None).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_state_independent_std_policy_in_pytorch_acts_and_returns_as_the_agent() {
+    let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
+    let runs = tempfile::tempdir().unwrap();
+    let std = r#"learner.network.policy_std="state_independent""#;
+    let cfg = short_pendulum("pendulum.toml", runs.path(), &[std]);
     agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy", None).await;
 }
 

@@ -20,7 +20,8 @@ The networks are transcribed from agent/src/core/nets (mlp.rs, policy.rs, torso.
   proprioceptive leaves];
 - Gaussian head (continuous actions, D dims): Linear to [mean_raw, std_raw];
   mean = tanh(mean_raw) when `network.tanh_on_action_mean`, std = softplus(std_raw) +
-  sqrt(`network.min_variance`);
+  sqrt(`network.min_variance`); with `network.policy_std = "state_independent"` the
+  Linear gives mean_raw only and std_raw is the parameter `std_raw` [D];
 - categorical head (A discrete actions): Linear to the logits.
 
 `act` returns what the agent's actor sends the env: a Gaussian action clipped to
@@ -143,7 +144,13 @@ class GaussianPolicy(_Policy):
         layers = network["policy_layers"]
         self.action_dim = dims["action"]["continuous"]["dim"]
         self._build_torso(network, dims)
-        self.head = nn.Linear(layers[-1], 2 * self.action_dim)
+        std = network.get("policy_std", "state_dependent")
+        if std not in ("state_dependent", "state_independent"):
+            raise ValueError(
+                f"config.network.policy_std: expected 'state_dependent' or 'state_independent', got {std!r}"
+            )
+        self.std_raw = nn.Parameter(torch.zeros(self.action_dim)) if std == "state_independent" else None
+        self.head = nn.Linear(layers[-1], self.action_dim * (1 if self.std_raw is not None else 2))
         self.tanh_mean = bool(network["tanh_on_action_mean"])
         self.min_std = math.sqrt(network["min_variance"])
         low, high = _bounds(dims.get("action_bounds"), self.action_dim)
@@ -152,7 +159,11 @@ class GaussianPolicy(_Policy):
         self.register_buffer("action_scale", torch.where(finite, (high - low) / 2, 1.0), persistent=False)
 
     def forward(self, obs: torch.Tensor, latent_noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        mean_raw, std_raw = self.head(self.features(obs, latent_noise)).split(self.action_dim, dim=-1)
+        out = self.head(self.features(obs, latent_noise))
+        if self.std_raw is None:
+            mean_raw, std_raw = out.split(self.action_dim, dim=-1)
+        else:
+            mean_raw, std_raw = out, self.std_raw.expand_as(out)
         mean = torch.tanh(mean_raw) if self.tanh_mean else mean_raw
         return mean, nn.functional.softplus(std_raw) + self.min_std
 

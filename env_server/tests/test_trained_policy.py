@@ -121,6 +121,28 @@ def test_gaussian_mean_without_tanh_and_bounds_from_before_they_were_stored(tmp_
     np.testing.assert_allclose(policy.act(obs).numpy(), np.clip(raw[:, :1], -1, 1), rtol=1e-5, atol=1e-6)
 
 
+def test_a_state_independent_std_is_the_std_raw_parameter(tmp_path: pathlib.Path) -> None:
+    """network.policy_std = "state_independent": the head gives the mean only and the
+    std is softplus(std_raw) + sqrt(min_variance) at every state."""
+    rng = np.random.default_rng(2)
+    layers, obs_dim, d = [5, 4], 3, 2
+    params = _params(rng, obs_dim, layers, d)
+    params["std_raw"] = np.array([-1.0, 0.5], np.float32)
+    network = _network(layers) | {"policy_std": "state_independent"}
+    dims = {"obs_dim": obs_dim, "action": {"continuous": {"dim": d}}, "reward_names": ["r"]}
+    policy = load_policy(_write(tmp_path, params, network, dims))
+    obs = rng.normal(0, 3, (6, obs_dim)).astype(np.float32)
+    out = _torso(params, obs.astype(np.float64), len(layers)) @ params["head.weight"].T + params["head.bias"]
+    got_mean, got_std = policy(torch.as_tensor(obs))
+    np.testing.assert_allclose(got_mean.detach().numpy(), np.tanh(out), rtol=1e-5, atol=1e-6)
+    std = np.log1p(np.exp(params["std_raw"].astype(np.float64))) + math.sqrt(1e-4)
+    np.testing.assert_allclose(got_std.detach().numpy(), np.broadcast_to(std, (6, d)), rtol=1e-5, atol=1e-6)
+    # The state-dependent layout's head (2 D outputs) does not fit this config.
+    params["head.weight"] = rng.uniform(-1, 1, (2 * d, layers[-1])).astype(np.float32)
+    with pytest.raises(ValueError, match=r"head.weight: expected shape \[2, 4\], got \[4, 4\]"):
+        load_policy(_write(tmp_path / "other", params, network, dims))
+
+
 def test_categorical_policy_hand_derived(tmp_path: pathlib.Path) -> None:
     """LayerNorm scale 0 makes the torso output tanh(LayerNorm bias) for every input:
     tanh([0, 0.5]) = [0, 0.4621]; head rows [1, 0], [0, 1], [0, -1] with bias [0, 0, 0.3]

@@ -38,7 +38,7 @@ use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with}
 use super::mpo_eval::TargetSamples;
 use super::objectives::{QSource, action_norm_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
-use super::projection::{Bounds, kl_ratio, project};
+use super::projection::{Bounds, gaussian_ratios, kl_ratio, project, project_parts};
 use super::real_states::{gather_states, real_states};
 use super::state::{Learner, LearnerError, LearnerStats, to_vec};
 use super::update::{PhaseClock, StepMeasures};
@@ -316,13 +316,20 @@ impl Learner {
             constraint: s.kl_constraint,
         };
         let policy = &self.nets.policy;
-        let kept = project(
-            &self.nets.policy_vs,
-            &self.nets.target_policy_vs,
-            self.members,
-            max_ratio,
-            || kl_ratio(&policy.forward_members(obs, None), target, &bounds, states),
-        );
+        let (online, frozen) = (&self.nets.policy_vs, &self.nets.target_policy_vs);
+        let kept = match (policy.state_independent_std(), target) {
+            (true, PolicyOutput::Gaussian(target)) => {
+                project_parts(online, frozen, self.members, max_ratio, || {
+                    match policy.forward_members(obs, None) {
+                        PolicyOutput::Gaussian(g) => gaussian_ratios(&g, target, &bounds, states),
+                        PolicyOutput::Categorical(_) => unreachable!("a Gaussian policy"),
+                    }
+                })
+            }
+            _ => project(online, frozen, self.members, max_ratio, || {
+                kl_ratio(&policy.forward_members(obs, None), target, &bounds, states)
+            }),
+        };
         self.policy_step_kept = Some(kept);
     }
 

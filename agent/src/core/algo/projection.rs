@@ -16,11 +16,18 @@
 //! its iterate feasible; the multipliers still set how the step trades improvement
 //! against the KL inside the region.
 //!
+//! With a state-dependent Gaussian (the paper's) the mean and the covariance share
+//! the torso, so one line search along all parameters serves both parts, and a step
+//! whose covariance part is past its bound loses its mean's move too. With a
+//! state-independent standard deviation (`network.policy_std`) the covariance's KL
+//! depends on `std_raw` alone and the mean's on the other parameters, so each part is
+//! projected along its own parameters against its own bound (`project_parts`).
+//!
 //! Shape legend: P members, N states, D action dims, A discrete actions.
 
 use super::estep::StateMean;
 use super::mstep::{KlConstraint, trust_region_kl};
-use crate::core::nets::{Members, PolicyOutput};
+use crate::core::nets::{GaussianParams, Members, PolicyOutput, STD_VARIABLE};
 use std::collections::HashMap;
 use tch::{Kind, Tensor, nn};
 
@@ -40,6 +47,31 @@ pub struct Bounds {
     pub constraint: KlConstraint,
 }
 
+/// A Gaussian policy's KL over its bound per part, `[P]` each (per dimension: the
+/// largest over the dimensions).
+pub struct PartRatios {
+    /// KL_mu / beta_mu.
+    pub mean: Tensor,
+    /// KL_Sigma / beta_Sigma.
+    pub cov: Tensor,
+}
+
+/// Each part's ratio of a Gaussian policy.
+pub fn gaussian_ratios(
+    online: &GaussianParams,
+    target: &GaussianParams,
+    bounds: &Bounds,
+    states: StateMean<'_>,
+) -> PartRatios {
+    let kl = trust_region_kl(online, &target.detach(), bounds.constraint, states);
+    let p = kl.mean.size()[0];
+    let over = |kl: &Tensor, beta: f64| (kl / beta).reshape([p, -1]).amax(&[1i64][..], false);
+    PartRatios {
+        mean: over(&kl.mean, bounds.beta_mean),
+        cov: over(&kl.cov, bounds.beta_cov),
+    }
+}
+
 /// Each member's KL over its bound, `[P]`: the largest of its parts (and, per
 /// dimension, of its dimensions).
 pub fn kl_ratio(
@@ -50,17 +82,8 @@ pub fn kl_ratio(
 ) -> Tensor {
     match (online, target) {
         (PolicyOutput::Gaussian(online), PolicyOutput::Gaussian(target)) => {
-            let kl = trust_region_kl(online, &target.detach(), bounds.constraint, states);
-            let p = kl.mean.size()[0];
-            let over = |kl: &Tensor, beta: f64| (kl / beta).reshape([p, -1]);
-            Tensor::cat(
-                &[
-                    over(&kl.mean, bounds.beta_mean),
-                    over(&kl.cov, bounds.beta_cov),
-                ],
-                1,
-            )
-            .amax(&[1i64][..], false)
+            let parts = gaussian_ratios(online, target, bounds, states);
+            parts.mean.maximum(&parts.cov)
         }
         (PolicyOutput::Categorical(online), PolicyOutput::Categorical(target)) => {
             let log_online = online.log_softmax(-1, Kind::Float);
@@ -93,9 +116,20 @@ impl<'a> Displacement<'a> {
         start: &HashMap<String, Tensor>,
         members: Members,
     ) -> Self {
+        Self::of_selected(online, start, members, Select::All)
+    }
+
+    /// As `of`, along the variables `select` takes only.
+    fn of_selected(
+        online: &'a nn::VarStore,
+        start: &HashMap<String, Tensor>,
+        members: Members,
+        select: Select,
+    ) -> Self {
         let parts = online
             .variables()
             .into_iter()
+            .filter(|(name, _)| select.takes(name))
             .map(|(name, now)| {
                 let at = start[&name].detach();
                 let away = (&now - &at).detach();
@@ -131,6 +165,28 @@ impl<'a> Displacement<'a> {
     }
 }
 
+/// Which of the policy's variables a line search moves.
+#[derive(Debug, Clone, Copy)]
+enum Select {
+    /// Every variable.
+    All,
+    /// The state-independent standard deviation only (`nets::STD_VARIABLE`).
+    Std,
+    /// Every variable but the standard deviation.
+    NotStd,
+}
+
+impl Select {
+    fn takes(self, name: &str) -> bool {
+        let std = name.rsplit('.').next() == Some(STD_VARIABLE);
+        match self {
+            Select::All => true,
+            Select::Std => std,
+            Select::NotStd => !std,
+        }
+    }
+}
+
 /// Whether any element of a boolean tensor is set.
 fn any(t: &Tensor) -> bool {
     t.any().to_kind(Kind::Int64).int64_value(&[]) != 0
@@ -151,6 +207,37 @@ pub fn project(
     target: &nn::VarStore,
     members: Members,
     max_ratio: f64,
+    ratio_of: impl FnMut() -> Tensor,
+) -> Tensor {
+    project_selected(online, target, members, max_ratio, Select::All, ratio_of)
+}
+
+/// [`project`] for a policy with a state-independent standard deviation: the
+/// covariance part along `std_raw` against `ratios().cov`, then the mean part along
+/// the other variables against `ratios().mean`. Returns the smaller fraction each
+/// member kept of the two, `[P]`.
+pub fn project_parts(
+    online: &nn::VarStore,
+    target: &nn::VarStore,
+    members: Members,
+    max_ratio: f64,
+    mut ratios: impl FnMut() -> PartRatios,
+) -> Tensor {
+    let cov = project_selected(online, target, members, max_ratio, Select::Std, || {
+        ratios().cov
+    });
+    let mean = project_selected(online, target, members, max_ratio, Select::NotStd, || {
+        ratios().mean
+    });
+    cov.minimum(&mean)
+}
+
+fn project_selected(
+    online: &nn::VarStore,
+    target: &nn::VarStore,
+    members: Members,
+    max_ratio: f64,
+    select: Select,
     mut ratio_of: impl FnMut() -> Tensor,
 ) -> Tensor {
     let ratio = tch::no_grad(&mut ratio_of);
@@ -159,7 +246,7 @@ pub fn project(
     if !any(&outside) {
         return ones;
     }
-    let displacement = Displacement::of(online, &target.variables(), members);
+    let displacement = Displacement::of_selected(online, &target.variables(), members, select);
     let first = (ratio.to_kind(Kind::Float).reciprocal() * (0.81 * max_ratio))
         .sqrt()
         .clamp_max(1.0);
@@ -185,7 +272,6 @@ pub fn project(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::nets::GaussianParams;
     use tch::Device;
 
     /// A store with one trainable `[members, 1]` parameter at `values`.
@@ -245,6 +331,47 @@ mod tests {
         let kept = project(&online, &target, Members::ONE, 2.0, ratio);
         let kept = kept.double_value(&[0]);
         assert!((kept - 0.4025 / 4.0).abs() < 1e-3, "{kept}");
+    }
+
+    #[test]
+    fn each_part_is_shortened_along_its_own_variables() {
+        // "w" stands for the mean's parameters and "std_raw" for a state-independent
+        // std's; ratio mean = w^2 / 0.01, cov = std_raw^2 / 0.01, bound 2 each.
+        let two = |w: f32, std: f32| {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let root = vs.root();
+            let _ = root.var("w", &[1], nn::Init::Const(f64::from(w)));
+            let _ = root.var(STD_VARIABLE, &[1], nn::Init::Const(f64::from(std)));
+            vs
+        };
+        let value = |vs: &nn::VarStore, name: &str| vs.variables()[name].double_value(&[0]);
+        let target = two(0.0, 0.0);
+        // The mean within (ratio 1), the std past (ratio 100).
+        let online = two(0.1, 1.0);
+        let ratios = || PartRatios {
+            mean: online.variables()["w"].square() / 0.01,
+            cov: online.variables()[STD_VARIABLE].square() / 0.01,
+        };
+        let kept = project_parts(&online, &target, Members::ONE, 2.0, ratios);
+        assert!(
+            (value(&online, "w") - 0.1).abs() < 1e-7,
+            "the mean's move is kept"
+        );
+        let std = value(&online, STD_VARIABLE);
+        assert!(
+            (std - 0.1273).abs() < 1e-3,
+            "the std's move is shortened: {std}"
+        );
+        assert!((kept.double_value(&[0]) - 0.1273).abs() < 1e-3, "{kept:?}");
+        // The whole-policy projection shortens both.
+        let online = two(0.1, 1.0);
+        let whole = || {
+            let v = online.variables();
+            (v["w"].square() / 0.01).maximum(&(v[STD_VARIABLE].square() / 0.01))
+        };
+        let kept = project(&online, &target, Members::ONE, 2.0, whole);
+        assert!((kept.double_value(&[0]) - 0.1273).abs() < 1e-3, "{kept:?}");
+        assert!(value(&online, "w") < 0.013, "{}", value(&online, "w"));
     }
 
     #[test]

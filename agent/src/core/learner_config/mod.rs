@@ -17,7 +17,7 @@ pub use conditioning::{ConditioningConfig, MAX_GRID_POINTS};
 pub use error::ConfigError;
 use error::{check, finite_pos};
 pub use mpo::MpoConfig;
-pub use network::{Architecture, NetworkConfig};
+pub use network::{Architecture, NetworkConfig, PolicyStd};
 pub use shared::{KlConstraint, MinAlpha, SharedSettings, TemperatureParameterization};
 pub use vmpo::{TopK, VmpoConfig};
 

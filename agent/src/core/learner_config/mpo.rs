@@ -107,7 +107,8 @@ pub struct MpoConfig {
     /// target policy along its displacement: first to where a KL growing as the
     /// square of the displacement would be 0.9 of the bound, then halved until the
     /// KL is within, and put at the target after ten halvings
-    /// (`algo/projection.rs`). The paper keeps
+    /// (`algo/projection.rs`); with `network.policy_std = "state_independent"` the
+    /// mean and the covariance each along their own parameters. The paper keeps
     /// the KL under beta by Lagrangian relaxation alone (C.3), which holds it on
     /// average but lets one target period of steps move the policy by hundreds of
     /// times beta after alpha has decayed (docs/stability.md). `None` (default): the

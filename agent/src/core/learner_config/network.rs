@@ -45,6 +45,23 @@ fn default_reference_match() -> String {
     "reference".into()
 }
 
+/// Where the Gaussian policy's standard deviation comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PolicyStd {
+    /// The paper's (appendix A): the network outputs the diagonal Cholesky factor
+    /// `A(s)` beside the mean, so mean and standard deviation share the torso.
+    #[default]
+    StateDependent,
+    /// Not in the paper: one learned standard deviation per action dimension
+    /// (`softplus` of a free parameter, PPO's and TRPO's choice), so the covariance's
+    /// KL depends on that vector alone and the trust region's projection
+    /// (`mpo.max_kl_ratio`) shortens the mean's and the covariance's steps each
+    /// against its own bound, instead of shortening the mean's step whenever the torso's
+    /// move changes the covariance (docs/benchmarks/mujoco.md).
+    StateIndependent,
+}
+
 /// Sizes and options of the policy and critic networks.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -68,6 +85,9 @@ pub struct NetworkConfig {
     pub tanh_on_critic_action: bool,
     /// The policy torso: the plain MLP, or A.3's mocap encoder with a latent.
     pub architecture: Architecture,
+    /// The Gaussian policy's standard deviation: per state from the network (the
+    /// paper's) or one learned value per action dimension.
+    pub policy_std: PolicyStd,
 }
 
 impl Default for NetworkConfig {
@@ -80,6 +100,7 @@ impl Default for NetworkConfig {
             min_variance: 1e-12,
             tanh_on_critic_action: true,
             architecture: Architecture::Mlp,
+            policy_std: PolicyStd::StateDependent,
         }
     }
 }

@@ -19,6 +19,7 @@ pub use dims::{ActionBounds, LearnerDims, ObsLeaf, ObsSplit};
 pub use mlp::Members;
 pub use policy::{
     ActOutput, Acting, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
+    STD_VARIABLE,
 };
 pub use snapshot::{ActorPolicy, NamedArray, PolicySnapshot, SnapshotError};
 pub use value::ValueNet;

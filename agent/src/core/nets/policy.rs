@@ -4,18 +4,25 @@
 //! Gaussian parameterisation (documented choice): the head outputs `[mean_raw, std_raw]`;
 //! `mean = tanh(mean_raw)` when `tanh_on_action_mean` (Table 2) else `mean_raw`, and
 //! `std = softplus(std_raw) + sqrt(min_variance)`, so the variance is at least
-//! `min_variance` (Table 2 "minimum variance", "maximum variance unbounded").
+//! `min_variance` (Table 2 "minimum variance", "maximum variance unbounded"). With
+//! `network.policy_std = "state_independent"` the head outputs `mean_raw` only and
+//! `std_raw` is one free parameter per action dimension ([`STD_VARIABLE`], initialised
+//! at 0: std 0.69, the head's initial scale).
 //!
 //! Shape legend: B states, M samples per state, D action dims, A discrete actions.
 
 use super::mlp::{Dense, Members};
 use super::torso::Torso;
 use super::{ActionKind, LearnerDims};
-use crate::core::learner_config::NetworkConfig;
+use crate::core::learner_config::{NetworkConfig, PolicyStd};
 use crate::core::random::RandomStream;
 use tch::{Kind, Tensor, nn};
 
 const HALF_LOG_TWO_PI: f64 = 0.918_938_533_204_672_7;
+
+/// The name of a state-independent policy's standard-deviation parameter `[D]`
+/// (`[P, D]` stacked) in the policy's variable store.
+pub const STD_VARIABLE: &str = "std_raw";
 
 /// Mean and standard deviation of a diagonal Gaussian per state.
 #[derive(Debug)]
@@ -57,6 +64,8 @@ impl GaussianParams {
 pub struct GaussianPolicy {
     torso: Torso,
     head: Dense,
+    /// `std_raw [D]` (`[P, D]`) when the standard deviation is state-independent.
+    std_raw: Option<Tensor>,
     action_dim: i64,
     tanh_mean: bool,
     min_std: f64,
@@ -79,10 +88,23 @@ impl GaussianPolicy {
     ) -> Self {
         let torso = Torso::with_members(p, cfg, dims, members);
         let last = torso.output_dim();
-        let head = Dense::with_members(&(p / "head"), last, 2 * action_dim, last, true, members);
+        let std_raw = match cfg.policy_std {
+            PolicyStd::StateDependent => None,
+            PolicyStd::StateIndependent => Some(p.var(
+                STD_VARIABLE,
+                &members.shape(&[action_dim]),
+                nn::Init::Const(0.0),
+            )),
+        };
+        let outputs = match std_raw {
+            None => 2 * action_dim,
+            Some(_) => action_dim,
+        };
+        let head = Dense::with_members(&(p / "head"), last, outputs, last, true, members);
         Self {
             torso,
             head,
+            std_raw,
             action_dim,
             tanh_mean: cfg.tanh_on_action_mean,
             min_std: cfg.min_variance.sqrt(),
@@ -106,15 +128,28 @@ impl GaussianPolicy {
         )
     }
 
-    /// Mean and std from the head's output `[.., 2 D]`.
+    /// Whether the standard deviation is one parameter per action dimension.
+    pub fn state_independent_std(&self) -> bool {
+        self.std_raw.is_some()
+    }
+
+    /// Mean and std from the head's output `[.., 2 D]` (`[.., D]` and `std_raw`
+    /// when the std is state-independent).
     fn params(&self, out: Tensor) -> GaussianParams {
         let parts = out.split(self.action_dim, -1);
-        let mean = if self.tanh_mean {
-            parts[0].tanh()
-        } else {
-            parts[0].shallow_clone()
+        let mean_raw = &parts[0];
+        let std_raw = match &self.std_raw {
+            None => parts[1].shallow_clone(),
+            // [D] broadcasts over [B, D]; stacked [P, D] over [P, B, D].
+            Some(raw) if raw.dim() == 2 => raw.unsqueeze(1).expand_as(mean_raw),
+            Some(raw) => raw.expand_as(mean_raw),
         };
-        let std = parts[1].softplus() + self.min_std;
+        let mean = if self.tanh_mean {
+            mean_raw.tanh()
+        } else {
+            mean_raw.shallow_clone()
+        };
+        let std = std_raw.softplus() + self.min_std;
         GaussianParams { mean, std }
     }
 }
@@ -307,6 +342,12 @@ impl Policy {
         }
     }
 
+    /// Whether a Gaussian policy's standard deviation is one parameter per action
+    /// dimension ([`STD_VARIABLE`]); false for state-dependent ones and categoricals.
+    pub fn state_independent_std(&self) -> bool {
+        matches!(self, Policy::Gaussian(g) if g.state_independent_std())
+    }
+
     /// The latent width of a latent torso, `None` for a plain one.
     pub fn latent_dim(&self) -> Option<i64> {
         match self {
@@ -397,6 +438,48 @@ mod tests {
         let out = policy.forward(&obs, None);
         assert!(out.std.min().double_value(&[]) >= 1e-2);
         assert!(out.mean.abs().max().double_value(&[]) <= 1.0);
+    }
+
+    #[test]
+    fn a_state_independent_std_is_one_learned_value_per_dimension() {
+        let cfg = NetworkConfig {
+            policy_std: PolicyStd::StateIndependent,
+            ..NetworkConfig::default()
+        };
+        let continuous = dims(3, ActionKind::Continuous { dim: 2 });
+        let vs = nn::VarStore::new(Device::Cpu);
+        let policy = GaussianPolicy::new(&vs.root(), &cfg, &continuous, 2);
+        assert_eq!(vs.variables()[STD_VARIABLE].size(), vec![2]);
+        assert_eq!(
+            vs.variables()["head.weight"].size()[0],
+            2,
+            "mean outputs only"
+        );
+        let out = policy.forward(&Tensor::randn([5, 3], (Kind::Float, Device::Cpu)), None);
+        assert_eq!(out.std.size(), vec![5, 2]);
+        // softplus(0) = ln 2 at every state and dimension.
+        let gap = (&out.std - 2f64.ln()).abs().max().double_value(&[]);
+        assert!(gap < 1e-5, "{:?}", out.std);
+        // Stacked members: [P, D], broadcast over each member's states.
+        let vs = nn::VarStore::new(Device::Cpu);
+        let members = Members::new(3).unwrap();
+        let stacked = GaussianPolicy::with_members(&vs.root(), &cfg, &continuous, 2, members);
+        assert_eq!(vs.variables()[STD_VARIABLE].size(), vec![3, 2]);
+        let obs = Tensor::randn([3, 4, 3], (Kind::Float, Device::Cpu));
+        let out = stacked.forward_members(&obs, None);
+        assert_eq!(out.std.size(), vec![3, 4, 2]);
+        // The gradient of a loss on std reaches std_raw alone among the parameters.
+        out.std.sum(Kind::Float).backward();
+        let head = vs.variables()["head.weight"].grad();
+        assert!(!head.defined() || head.abs().max().double_value(&[]) == 0.0);
+        assert!(
+            vs.variables()[STD_VARIABLE]
+                .grad()
+                .abs()
+                .min()
+                .double_value(&[])
+                > 0.0
+        );
     }
 
     #[test]
