@@ -7,6 +7,7 @@
 pub mod activation;
 pub mod critic;
 pub mod dims;
+pub mod distribution;
 pub mod heads;
 pub mod mlp;
 pub mod policy;
@@ -16,11 +17,9 @@ pub mod value;
 
 pub use critic::MultiCritic;
 pub use dims::{ActionBounds, LearnerDims, ObsLeaf, ObsSplit};
+pub use distribution::{GaussianParams, PolicyOutput, gather_rows};
 pub use mlp::Members;
-pub use policy::{
-    ActOutput, Acting, CategoricalPolicy, GaussianParams, GaussianPolicy, Policy, PolicyOutput,
-    STD_VARIABLE,
-};
+pub use policy::{ActOutput, Acting, CategoricalPolicy, GaussianPolicy, Policy, STD_VARIABLE};
 pub use snapshot::{ActorPolicy, NamedArray, PolicySnapshot, SnapshotError};
 pub use value::ValueNet;
 
