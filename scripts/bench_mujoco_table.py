@@ -2,7 +2,7 @@
 """The MuJoCo benchmark's table, stability check and curves, from its results file.
 
     python scripts/bench_mujoco_table.py [--results docs/benchmarks/mujoco-results.csv]
-        [--session ID[,ID..]] [--plots docs/benchmarks] [--ref-undiscounted TASK=X:Y]
+        [--session ID[,ID..]] [--tasks TASK[,TASK..]] [--plots DIR] [--ref-undiscounted TASK=X:Y]
         [--per-evaluation]
 
 One markdown row per task, session and method: the seeds' medians (range) of the final
@@ -16,7 +16,8 @@ score v is at least its best so far b minus 20% of |b| (v >= b - 0.2 |b|: 80% of
 b > 0; for a negative best, at most 20% of its magnitude worse, e.g. b = -150 allows
 -180). The score is the return, or the discounted hypervolume. The runs that fail are
 listed below the table. --plots DIR draws DIR/mujoco-TASK.png per task: each run's
-evaluations against env steps, coloured by method ("" draws none). --per-evaluation
+evaluations against env steps, coloured by method (none by default, so that a look at
+another results file or a few sessions leaves the page's curves as they are). --per-evaluation
 prints, instead of the summary, every run's evaluations: a table per set of evaluation
 points, a row per task, seed and method (two-objective tasks: a row per hypervolume,
 discounted in thousands and undiscounted in millions), the final evaluation in bold.
@@ -193,7 +194,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", type=pathlib.Path, default=pathlib.Path("docs/benchmarks/mujoco-results.csv"))
     ap.add_argument("--session", default="", help="only these sessions' runs (comma-separated)")
-    ap.add_argument("--plots", default="docs/benchmarks", help='folder for the curves ("" draws none)')
+    ap.add_argument("--tasks", default="", help="only these tasks' runs (comma-separated)")
+    ap.add_argument("--plots", default="", help="folder for the curves (none by default)")
     ap.add_argument("--per-evaluation", action="store_true", help="print every run's evaluations instead")
     ap.add_argument(
         "--ref-undiscounted",
@@ -204,7 +206,14 @@ def main() -> None:
     )
     args = ap.parse_args()
     sessions = set(filter(None, args.session.split(",")))
-    rows = [r for r in results.read(args.results) if not sessions or r["session"] in sessions]
+    tasks = set(filter(None, args.tasks.split(",")))
+    if unknown := sorted(tasks - set(TASKS)):
+        ap.error(f"--tasks: expected some of {', '.join(TASKS)}, got {', '.join(unknown)}")
+    rows = [
+        r
+        for r in results.read(args.results)
+        if (not sessions or r["session"] in sessions) and (not tasks or r["task"] in tasks)
+    ]
     for spec in args.ref_undiscounted:
         task, _, ref = spec.partition("=")
         point = tuple(float(v) for v in ref.split(":"))
