@@ -184,15 +184,18 @@ def cluster() -> Iterator[object]:
     started = time.monotonic()
     # Ray gives a new node's raylet 30 s to register with the GCS (hard-coded in
     # ray/_private/node.py) and now and then one misses it on this 2-core machine, before
-    # any code of ours runs: a fresh cluster is tried, up to three in all.
+    # any code of ours runs, the head's as well as the worker's: a fresh cluster is
+    # tried, up to three in all (a head that failed to start is reaped at exit).
     for attempt in range(1, 4):
-        c = Cluster(initialize_head=True, head_node_args={"num_cpus": 3, "include_dashboard": False})
+        c = None
         try:
+            c = Cluster(initialize_head=True, head_node_args={"num_cpus": 3, "include_dashboard": False})
             c.worker = c.add_node(num_cpus=3)
             c.wait_for_nodes()
             break
         except Exception as exc:
-            c.shutdown()
+            if c is not None:
+                c.shutdown()
             if attempt == 3:
                 raise
             print(f"two-node cluster, attempt {attempt}: {exc}; starting another", file=sys.stderr)
