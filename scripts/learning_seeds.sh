@@ -17,7 +17,7 @@ shift || true
 # package:test binary of every end-to-end learning test.
 tests=("integration-tests:learning" "integration-tests:main_job" "integration-tests:conditioned"
   "integration-tests:onpolicy" "integration-tests:onpolicy_preferences" "agent:resume_continuity"
-  "agent:behaviour" "agent:vmpo_behaviour" "agent:scale_invariance")
+  "agent:behaviour" "agent:vmpo_behaviour" "agent:scale_invariance" "agent:python_policy")
 if [[ $# -gt 0 ]]; then
   wanted=" $* "
   tests=($(printf '%s\n' "${tests[@]}" | while IFS=: read -r p t; do [[ $wanted == *" $t "* ]] && echo "$p:$t"; done))
