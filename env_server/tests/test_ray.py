@@ -176,31 +176,67 @@ def test_ctrl_c_reaches_the_command_once_and_stops_the_servers():
 # --- a two-node cluster --------------------------------------------------------------------------
 
 
+def process_tree() -> dict[int, list[int]]:
+    """Each live process's children, read from /proc (psutil is not in .venv)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue  # exited while listed
+            children.setdefault(ppid, []).append(int(entry))
+    return children
+
+
+def start_node(cluster, **node_args) -> object:
+    """`cluster.add_node(**node_args)`, tried up to three times.
+
+    Ray gives a new node's raylet 30 s to register with the GCS (hard-coded in
+    ray/_private/node.py) and now and then one misses it on this 2-core machine, before any
+    code of ours runs: a head's as well as a worker's. A failed start raises from inside
+    Ray's `Node()` without a handle to remove, so the processes it started (the children
+    this process gained, with theirs; the nodes already up are older children) are killed
+    before the next try. A head that failed leaves the cluster headless, so the next try
+    starts the head again.
+    """
+    for attempt in range(1, 4):
+        before = set(process_tree().get(os.getpid(), []))
+        node = None
+        try:
+            node = cluster.add_node(**node_args)
+            cluster.wait_for_nodes()
+            return node
+        except Exception as exc:
+            if node is not None:  # started, then not seen alive: the cluster lists it
+                cluster.remove_node(node, allow_graceful=False)
+            tree = process_tree()
+            doomed = [pid for pid in tree.get(os.getpid(), []) if pid not in before]
+            while doomed:
+                pid = doomed.pop()
+                doomed.extend(tree.get(pid, []))
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            if attempt == 3:
+                raise
+            print(f"node {node_args}, attempt {attempt}: {exc}; starting it again", file=sys.stderr)
+    raise AssertionError("unreachable")
+
+
 @pytest.fixture(scope="module")
 def cluster() -> Iterator[object]:
     """A head and one worker node on 127.0.0.1, 3 logical CPUs each (3 servers fit on either)."""
     from ray.cluster_utils import Cluster
 
     started = time.monotonic()
-    # Ray gives a new node's raylet 30 s to register with the GCS (hard-coded in
-    # ray/_private/node.py) and now and then one misses it on this 2-core machine, before
-    # any code of ours runs, the head's as well as the worker's: a fresh cluster is
-    # tried, up to three in all (a head that failed to start is reaped at exit).
-    for attempt in range(1, 4):
-        c = None
-        try:
-            c = Cluster(initialize_head=True, head_node_args={"num_cpus": 3, "include_dashboard": False})
-            c.worker = c.add_node(num_cpus=3)
-            c.wait_for_nodes()
-            break
-        except Exception as exc:
-            if c is not None:
-                c.shutdown()
-            if attempt == 3:
-                raise
-            print(f"two-node cluster, attempt {attempt}: {exc}; starting another", file=sys.stderr)
-    print(f"two-node cluster up in {time.monotonic() - started:.1f} s", file=sys.stderr)
+    c = Cluster(initialize_head=False)
     try:
+        start_node(c, num_cpus=3, include_dashboard=False)  # the head
+        c.worker = start_node(c, num_cpus=3)
+        print(f"two-node cluster up in {time.monotonic() - started:.1f} s", file=sys.stderr)
         yield c
     finally:
         c.shutdown()
@@ -301,8 +337,7 @@ def test_a_sweep_runs_as_ray_tasks_and_a_shard_on_a_lost_node_resumes_elsewhere(
     removed once that shard has a checkpoint: Ray retries the task on the head node, where it
     resumes the shard's folder, and the merged front has every run."""
     agent = _agent_binary()
-    worker = cluster.add_node(num_cpus=3)
-    cluster.wait_for_nodes()
+    worker = start_node(cluster, num_cpus=3)
     base = open(os.path.join(ROOT, "configs", "smoke", "dst.toml")).read()
     (tmp_path / "dst.toml").write_text(
         base.replace("[run]\n", f"[run]\nruns_dir = {str(tmp_path / 'runs')!r}\n").replace(
