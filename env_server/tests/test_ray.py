@@ -114,13 +114,18 @@ class Launcher:
                 self.proc.wait()
 
 
+def proc_stat(pid: int | str) -> list[str]:
+    """The fields of /proc/PID/stat after the command name: state, ppid, ..."""
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()
+
+
 def pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    with open(f"/proc/{pid}/stat") as f:  # a zombie has exited
-        return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    return proc_stat(pid)[0] != "Z"  # a zombie has exited
 
 
 # --- a local Ray started by the launcher ---------------------------------------------------------
@@ -182,8 +187,7 @@ def process_tree() -> dict[int, list[int]]:
     for entry in os.listdir("/proc"):
         if entry.isdigit():
             try:
-                with open(f"/proc/{entry}/stat") as f:
-                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+                ppid = int(proc_stat(entry)[1])
             except (OSError, IndexError, ValueError):
                 continue  # exited while listed
             children.setdefault(ppid, []).append(int(entry))
