@@ -28,7 +28,7 @@ pub(crate) fn train(s: &TrainSummary) {
     );
     println!(
         "  temperatures eta_k     {}",
-        format_temperatures(&s.temperature, s.objectives.len())
+        format_temperatures(&s.temperature, s.learner_objectives.len())
     );
     if let Some(signal) = &s.interrupted {
         println!(

@@ -19,6 +19,7 @@ use std::time::Instant;
 use serde::Serialize;
 use tokio::sync::watch;
 
+use crate::core::algo::objectives::BoundObjectives;
 use crate::core::algo::{Learner, LearnerStats, SnippetBatch};
 use crate::core::nets::PolicySnapshot;
 use crate::report::metrics::RunFiles;
@@ -103,18 +104,21 @@ fn labels(values: &[f32], objectives: &[String], parts: bool) -> Vec<String> {
 
 impl LearnerRecord {
     /// The record as TensorBoard scalars (`learner/...`, `throughput/...`), labelled by
-    /// objective name (or `mean`/`covariance` for the Gaussian trust region's parts,
-    /// each the mean over action dimensions under a per-dimension KL constraint).
-    pub fn scalars(&self, objectives: &[String]) -> Vec<Scalar> {
+    /// critic head (`names.critic_names`), by the E-step's objective
+    /// (`BoundObjectives::names`), or `mean`/`covariance` for the Gaussian trust
+    /// region's parts (each the mean over action dimensions under a per-dimension KL
+    /// constraint).
+    pub fn scalars(&self, names: &BoundObjectives) -> Vec<Scalar> {
         let mut out = Vec::new();
-        let groups: [(&str, &[f32], bool); 5] = [
-            ("critic_loss", &self.critic_loss, false),
-            ("temperature", &self.temperature, false),
-            ("estep_kl", &self.estep_kl, false),
-            ("alpha", &self.alpha, true),
-            ("policy_kl", &self.policy_kl, true),
+        let (critics, objectives) = (&names.critic_names, &names.names());
+        let groups: [(&str, &[f32], &[String], bool); 5] = [
+            ("critic_loss", &self.critic_loss, critics, false),
+            ("temperature", &self.temperature, objectives, false),
+            ("estep_kl", &self.estep_kl, objectives, false),
+            ("alpha", &self.alpha, &[], true),
+            ("policy_kl", &self.policy_kl, &[], true),
         ];
-        for (name, values, parts) in groups {
+        for (name, values, objectives, parts) in groups {
             for (label, v) in labels(values, objectives, parts).iter().zip(values) {
                 out.push(Scalar::new(
                     format!("learner/{name}/{label}"),
@@ -355,7 +359,7 @@ fn after_step(
             .send_replace(Arc::new(learner.member_policy_snapshot(p)));
     }
     if n.is_multiple_of(periods.log) {
-        log_step(m, &stats, step)?;
+        log_step(m, &stats, step, learner.objectives())?;
     }
     *m.run.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(stats);
     if n.is_multiple_of(periods.checkpoint) {
@@ -365,7 +369,14 @@ fn after_step(
 }
 
 /// A member's log record of this step: learner.jsonl and TensorBoard.
-fn log_step(m: &mut Running, stats: &LearnerStats, step: &Stepped) -> Result<(), LearnerLoopError> {
+/// `objectives`: the learner's critic heads and E-step objectives, which label the
+/// statistics.
+fn log_step(
+    m: &mut Running,
+    stats: &LearnerStats,
+    step: &Stepped,
+    objectives: &BoundObjectives,
+) -> Result<(), LearnerLoopError> {
     let now = Mark {
         wall_seconds: step.started.elapsed().as_secs_f64(),
         env_steps: m.run.schedule.counters().env_steps,
@@ -391,7 +402,7 @@ fn log_step(m: &mut Running, stats: &LearnerStats, step: &Stepped) -> Result<(),
     // Every TensorBoard chart is by env step, as in SB3 and Acme.
     let files = &m.run.files;
     files
-        .scalars(now.env_steps, &record.scalars(files.objectives()))
+        .scalars(now.env_steps, &record.scalars(objectives))
         .map_err(io_err(&files.events_path()))?;
     let path = files.dir().join("learner.jsonl");
     files.learner(&record).map_err(io_err(&path))?;

@@ -17,7 +17,8 @@
 //!    no policy is fitted there. Q_k is the target critic's head for learned
 //!    objectives and `-||a_env||_2` for the action norm, with a_env the action the env
 //!    executes for the sample (clipped and mapped onto its Box, as the env's reward
-//!    sees it); weights q_k and the temperature duals (`estep.rs`).
+//!    sees it), and `-||a - clip(a)||_2` for the out-of-bounds penalty
+//!    (`mpo.action_penalization`); weights q_k and the temperature duals (`estep.rs`).
 //! 3. **M-step** (eqs. 16-20): weighted maximum likelihood with the decoupled trust
 //!    region (`mstep.rs`); one Adam step on the policy and one on all duals, then the
 //!    dual floor (`dual.rs`).
@@ -36,7 +37,7 @@
 use super::batch::{SnippetBatch, StepShape};
 use super::estep::{EStepOutput, StateMean, exact_estep_with, sampled_estep_with};
 use super::mpo_eval::TargetSamples;
-use super::objectives::{QSource, action_norm_q};
+use super::objectives::{QSource, action_norm_q, out_of_bounds_q};
 use super::preferences::{StatePreferences, collected_index, relabel};
 use super::projection::{Bounds, gaussian_ratios, kl_ratio, project, project_parts};
 use super::real_states::{gather_states, real_states};
@@ -96,6 +97,7 @@ impl Learner {
             .map(|o| match o.source {
                 QSource::Critic { head } => critic_q.select(-1, head as i64),
                 QSource::ActionNorm => action_norm_q(actions, self.dims.action_bounds.as_ref()),
+                QSource::OutOfBounds => out_of_bounds_q(actions),
             })
             .collect();
         Tensor::stack(&columns, -1)
@@ -343,7 +345,9 @@ impl Learner {
 
     /// Policy improvement only (E-step, M-step, duals) on given Q-values of the target
     /// policy's samples, for bandits and tests where Q is known in closed form.
-    /// `q_fn` maps sampled actions `[M, N, D]` to Q `[M, N, K]`. An ε-conditioned
+    /// `q_fn` maps sampled actions `[M, N, D]` to the critic heads' Q `[M, N, C]`;
+    /// closed-form objectives (action norm, out-of-bounds penalty) are added as `step`
+    /// adds them (`estep_q`), so with learned objectives only C = K. An ε-conditioned
     /// learner trains each state at a grid point, as `step` trains each snippet
     /// (`obs [N, O + F]` carries the features it reads back or overwrites).
     /// Returns (temperatures, policy KL (KL_mu, KL_Sigma) before the update).
@@ -365,7 +369,8 @@ impl Learner {
             .normal(&shape, self.device)
             .unsqueeze(0);
         let actions = tch::no_grad(|| target.mean.unsqueeze(1) + noise * target.std.unsqueeze(1));
-        let q = q_fn(&actions.squeeze_dim(0)).unsqueeze(0);
+        let sampled = actions.squeeze_dim(0);
+        let q = self.estep_q(&q_fn(&sampled), &sampled).unsqueeze(0);
         let fit = Improvement {
             obs,
             target: target_out,

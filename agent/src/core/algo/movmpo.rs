@@ -275,7 +275,7 @@ impl Learner {
             .iter()
             .map(|o| match o.source {
                 QSource::Critic { head } => advantages.select(-1, head as i64),
-                QSource::ActionNorm => {
+                QSource::ActionNorm | QSource::OutOfBounds => {
                     unreachable!("bind_config rejects closed-form objectives for V-MPO")
                 }
             })

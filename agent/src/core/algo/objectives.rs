@@ -4,7 +4,9 @@
 //!
 //! After binding, the E-step sees K objectives in env order, each either a critic head
 //! or the closed-form action norm `-||a||_2` of the executed action (appendix A,
-//! humanoid run). Critic head c
+//! humanoid run); with `mpo.action_penalization` one more follows them, the
+//! out-of-bounds penalty `-||a - clip(a, -1, 1)||_2` (Acme's MPO; not in the paper),
+//! which no env column has. Critic head c
 //! learns the reward `sum_j W[j, c] r_j` (W `[K_env, C]`): a one-hot column for MO-MPO,
 //! the scalarization weights for scalarized MPO.
 
@@ -27,6 +29,24 @@ pub enum QSource {
     },
     /// `-||a||_2` of the action the env executes for the sample (`action_norm_q`).
     ActionNorm,
+    /// `-||a - clip(a, -1, 1)||_2` of the sample (`out_of_bounds_q`).
+    OutOfBounds,
+}
+
+/// Name of the out-of-bounds penalty objective (`mpo.action_penalization`) among the
+/// E-step's objectives, after the env's.
+pub const ACTION_PENALTY: &str = "action_penalty";
+
+/// The closed-form out-of-bounds penalty: `-||a - clip(a, -1, 1)||_2` of each sample,
+/// in the policy's action units (the env maps [-1, 1] onto its Box). 0 inside the
+/// box and growing linearly outside it, as Acme's MPO computes it.
+/// # Shapes
+/// `actions [..., D] -> [...]`.
+pub fn out_of_bounds_q(actions: &Tensor) -> Tensor {
+    -(actions - actions.clamp(-1.0, 1.0))
+        .square()
+        .sum_dim_intlist(-1, false, Kind::Float)
+        .sqrt()
 }
 
 /// The closed-form action-norm Q: `-||a_env||_2` with `a_env` the action the env would
@@ -66,6 +86,15 @@ pub struct BoundObjectives {
     pub critic_names: Vec<String>,
     /// `[K_env][C]`: reward weights of each critic head.
     pub critic_reward_weights: Vec<Vec<f64>>,
+}
+
+impl BoundObjectives {
+    /// The E-step's objective names in order (what temperatures and E-step KLs are
+    /// listed by): the env's, `scalarized` for a scalarized baseline, then
+    /// [`ACTION_PENALTY`] when it is on.
+    pub fn names(&self) -> Vec<String> {
+        self.objectives.iter().map(|o| o.name.clone()).collect()
+    }
 }
 
 fn check_names(what: &str, given: &[&str], env: &[String]) -> Result<(), ConfigError> {
@@ -256,6 +285,7 @@ pub fn bind_config(
             });
         }
     }
+    let bound = with_action_penalty(cfg, dims, bound)?;
     if bound.critic_names.is_empty() {
         return Err(ConfigError::Invalid {
             field: "objectives".into(),
@@ -279,6 +309,47 @@ pub fn bind_config(
             });
         }
     }
+    Ok(bound)
+}
+
+/// `bound` with the out-of-bounds penalty objective appended when
+/// `mpo.action_penalization` is set: MPO-family learners with continuous actions only.
+fn with_action_penalty(
+    cfg: &LearnerConfig,
+    dims: &LearnerDims,
+    mut bound: BoundObjectives,
+) -> Result<BoundObjectives, ConfigError> {
+    let Some(epsilon) = cfg.mpo.action_penalization else {
+        return Ok(bound);
+    };
+    let refuse = |requirement: &str, got: String| ConfigError::Invalid {
+        field: "mpo.action_penalization".into(),
+        requirement: requirement.into(),
+        got,
+    };
+    if cfg.algorithm.on_policy() {
+        return Err(refuse(
+            "unset for V-MPO (its step 1 weighs taken actions, not samples)",
+            format!("{epsilon} with {}", cfg.algorithm.short_name()),
+        ));
+    }
+    if let ActionKind::Discrete { .. } = dims.action {
+        return Err(refuse(
+            "unset for discrete actions (no bounds to leave)",
+            format!("{epsilon} with a discrete action space"),
+        ));
+    }
+    if dims.reward_names.iter().any(|n| n == ACTION_PENALTY) {
+        return Err(refuse(
+            &format!("unset when the env has an objective named {ACTION_PENALTY:?}"),
+            format!("{epsilon} with env objectives {:?}", dims.reward_names),
+        ));
+    }
+    bound.objectives.push(BoundObjective {
+        name: ACTION_PENALTY.into(),
+        epsilon,
+        source: QSource::OutOfBounds,
+    });
     Ok(bound)
 }
 
@@ -479,6 +550,108 @@ mod tests {
             ..scalarized
         };
         assert!(check_declared(&mompo, &env(ClosedForm::None)).is_err());
+    }
+
+    #[test]
+    fn the_out_of_bounds_penalty_is_the_distance_to_the_box() {
+        // Inside the box: 0. Outside: the Euclidean distance to its nearest point,
+        // ||(2 - 1, -1.5 + 1)|| for (2, -1.5); a sample out in one dimension only
+        // counts that dimension.
+        let samples = Tensor::from_slice(&[0.5f32, -1.0, 2.0, -1.5, 0.0, 4.0]).reshape([3, 2]);
+        let q = Vec::<f32>::try_from(&out_of_bounds_q(&samples)).unwrap();
+        let want = [0.0, -(1.25f32.sqrt()), -3.0];
+        for (got, want) in q.iter().zip(want) {
+            assert!((got - want).abs() < 1e-6, "{q:?}");
+        }
+    }
+
+    #[test]
+    fn action_penalization_appends_one_closed_form_objective_after_the_envs() {
+        use crate::core::learner_config::Algorithm;
+        let dims = |action, names: &[&str]| LearnerDims {
+            action_bounds: None,
+            obs_dim: 3,
+            action,
+            reward_names: names.iter().map(|n| n.to_string()).collect(),
+            obs_leaves: Vec::new(),
+        };
+        let continuous = dims(ActionKind::Continuous { dim: 2 }, &["task", "action_norm"]);
+        let mut cfg = LearnerConfig {
+            objectives: vec![
+                obj("task", 0.1, ObjectiveSource::Learned),
+                obj("action_norm", 0.01, ObjectiveSource::ActionNorm),
+            ],
+            ..LearnerConfig::default()
+        };
+        assert_eq!(
+            bind_config(&cfg, &continuous).unwrap().names(),
+            ["task", "action_norm"]
+        );
+        cfg.mpo.action_penalization = Some(1e-3);
+        let b = bind_config(&cfg, &continuous).unwrap();
+        assert_eq!(b.names(), ["task", "action_norm", ACTION_PENALTY]);
+        assert_eq!(b.objectives[2].source, QSource::OutOfBounds);
+        assert_eq!(b.objectives[2].epsilon, 1e-3);
+        // No critic head for it.
+        assert_eq!(b.critic_names, ["task"]);
+        // Scalarized MPO: after its one objective, as Acme's MPO has it.
+        let scalarized = LearnerConfig {
+            algorithm: Algorithm::ScalarizedMpo {
+                epsilon: 0.1,
+                weights: vec![
+                    ObjectiveWeight {
+                        name: "task".into(),
+                        weight: 1.0,
+                    },
+                    ObjectiveWeight {
+                        name: "action_norm".into(),
+                        weight: 0.0,
+                    },
+                ],
+            },
+            ..cfg.clone()
+        };
+        assert_eq!(
+            bind_config(&scalarized, &continuous).unwrap().names(),
+            ["scalarized", ACTION_PENALTY]
+        );
+        // Refused, naming the field: V-MPO, discrete actions, an env objective of that name.
+        let mut learned = cfg.clone();
+        learned.objectives[1].source = ObjectiveSource::Learned;
+        let vmpo = LearnerConfig {
+            algorithm: Algorithm::MoVmpo,
+            ..learned.clone()
+        };
+        let refusals = [
+            bind_config(&vmpo, &continuous),
+            bind_config(
+                &learned,
+                &dims(ActionKind::Discrete { n: 4 }, &["task", "action_norm"]),
+            ),
+            bind_config(
+                &LearnerConfig {
+                    objectives: vec![
+                        obj("task", 0.1, ObjectiveSource::Learned),
+                        obj(ACTION_PENALTY, 0.1, ObjectiveSource::Learned),
+                    ],
+                    ..cfg.clone()
+                },
+                &dims(ActionKind::Continuous { dim: 2 }, &["task", ACTION_PENALTY]),
+            ),
+        ];
+        for (result, why) in refusals.into_iter().zip(["V-MPO", "discrete", "named"]) {
+            let msg = result.unwrap_err().to_string();
+            assert!(
+                msg.starts_with("mpo.action_penalization must be unset") && msg.contains(why),
+                "{msg}"
+            );
+        }
+        cfg.mpo.action_penalization = Some(0.0);
+        let msg = bind_config(&cfg, &continuous).unwrap_err().to_string();
+        assert_eq!(
+            msg,
+            "mpo.action_penalization must be an ε > 0 when set, got 0.0"
+        );
     }
 
     #[test]

@@ -167,6 +167,7 @@ impl Population {
             wall_seconds: self.started.elapsed().as_secs_f64(),
             recent_train_return: counters.recent_mean_return(),
             temperature: stats.map(|s| s.temperature).unwrap_or_default(),
+            learner_objectives: self.learner_objectives.clone(),
             eval_return: mean_of(eval.iter().map(|e| &e.episode_return)),
             eval_discounted_return: mean_of(eval.iter().map(|e| &e.discounted_return)),
             eval_discount: self.discount,

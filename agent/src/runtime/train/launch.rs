@@ -57,6 +57,7 @@ impl Population {
                 run.latest.clone(),
                 bar.clone(),
                 self.objectives.clone(),
+                self.learner_objectives.len(),
             ));
             bars.push(bar);
         }

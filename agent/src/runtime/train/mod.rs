@@ -136,8 +136,12 @@ pub struct TrainSummary {
     pub wall_seconds: f64,
     /// Mean undiscounted return of the last training episodes.
     pub recent_train_return: Vec<f64>,
-    /// Temperatures eta_k at the end.
+    /// Temperatures eta_k at the end, by `learner_objectives` (grid point by grid
+    /// point when ε-conditioned).
     pub temperature: Vec<f32>,
+    /// The learner's E-step objectives: `objectives` (or `scalarized`), then
+    /// `action_penalty` with `mpo.action_penalization`.
+    pub learner_objectives: Vec<String>,
     /// Evaluation episodes (deterministic policy), as reported by the server.
     pub eval_episodes: Vec<EpisodeSummary>,
     /// Mean undiscounted evaluation return per objective.
@@ -204,6 +208,9 @@ struct Population {
     servers: Arc<ServerPool>,
     /// Objective names in reward order.
     objectives: Vec<String>,
+    /// The learner's E-step objectives (`BoundObjectives::names`), which its
+    /// temperatures are listed by.
+    learner_objectives: Vec<String>,
     /// The env's discount, for discounted evaluation returns.
     discount: f64,
     dims: LearnerDims,

@@ -73,6 +73,7 @@ impl Population {
             cfg,
             servers,
             objectives,
+            learner_objectives: learner.objectives().names(),
             discount: spec.discount,
             dims,
             device,

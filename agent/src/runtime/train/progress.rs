@@ -51,6 +51,7 @@ pub(super) fn spawn_ticker(
     latest: Arc<Mutex<Option<LearnerStats>>>,
     bar: ProgressBar,
     names: Vec<String>,
+    learner_objectives: usize,
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
         let mut signal = std::pin::pin!(interrupt_signal());
@@ -74,6 +75,7 @@ pub(super) fn spawn_ticker(
             bar.set_message(progress_message(
                 &c,
                 &names,
+                learner_objectives,
                 latest.lock().unwrap_or_else(|e| e.into_inner()).as_ref(),
             ));
             if c.stop {
@@ -97,7 +99,13 @@ pub(super) fn progress_bar(enabled: bool, cfg: &TrainConfig, schedule: &Schedule
     bar
 }
 
-fn progress_message(c: &Counters, names: &[String], stats: Option<&LearnerStats>) -> String {
+/// `learner_objectives`: how many E-step objectives the temperatures are listed by.
+fn progress_message(
+    c: &Counters,
+    names: &[String],
+    learner_objectives: usize,
+    stats: Option<&LearnerStats>,
+) -> String {
     let fmt = |v: &[f64]| {
         v.iter()
             .map(|x| format!("{x:.2}"))
@@ -115,7 +123,7 @@ fn progress_message(c: &Counters, names: &[String], stats: Option<&LearnerStats>
         let kl: Vec<f64> = s.policy_kl.iter().map(|&x| f64::from(x)).collect();
         msg.push_str(&format!(
             " | eta {} | KL [{}]",
-            format_temperatures(&s.temperature, names.len()),
+            format_temperatures(&s.temperature, learner_objectives),
             kl.iter()
                 .map(|x| format!("{x:.1e}"))
                 .collect::<Vec<_>>()
