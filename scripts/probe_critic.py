@@ -42,12 +42,7 @@ import torch
 from safetensors.torch import load_file
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "env_server"))
-from env_server.trained_policy import load_policy  # noqa: E402
-
-
-def checkpoint_dir(path: pathlib.Path) -> pathlib.Path:
-    latest = path / "checkpoints" / "latest.json"
-    return path / "checkpoints" / json.loads(latest.read_text())["checkpoint"] if latest.exists() else path
+from env_server.trained_policy import checkpoint_dir, grid_points, load_policy  # noqa: E402
 
 
 def run_dir(ckpt: pathlib.Path) -> pathlib.Path:
@@ -173,13 +168,10 @@ def probe(ckpt: pathlib.Path, preference: dict[str, float] | None, args: argpars
 def grid_point(config: dict, names: list[str], preference: dict[str, float] | None, temperature: list[float]):
     """ε of every objective at this preference and the checkpoint's temperatures there
     (the `[G, K]` table's row; the nearest grid point's for a preference off the grid)."""
-    fixed = [o["epsilon"] for o in config["objectives"]]
-    lists = (config.get("conditioning") or {}).get("epsilon", {})
-    points = [fixed]
-    for name in [n for n in names if n in lists]:
-        k = names.index(name)
-        points = [p[:k] + [v] + p[k + 1 :] for p in points for v in lists[name]]
-    asked = list(points[len(points) // 2])
+    points = grid_points(config, names)
+    # As load_policy's features: the middle point by default, else the first one's
+    # other values.
+    asked = list(points[len(points) // 2] if preference is None else points[0])
     for name, value in (preference or {}).items():
         asked[names.index(name)] = value
     g = min(range(len(points)), key=lambda i: sum(abs(math.log(a / b)) for a, b in zip(points[i], asked)))

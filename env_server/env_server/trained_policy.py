@@ -205,6 +205,15 @@ class CategoricalPolicy(_Policy):
         return action if batched else action[0]
 
 
+def checkpoint_dir(path: str | pathlib.Path) -> pathlib.Path:
+    """A checkpoint directory as given, or a run directory's latest checkpoint."""
+    path = pathlib.Path(path)
+    latest = path / "checkpoints" / "latest.json"
+    if latest.exists():
+        return path / "checkpoints" / json.loads(latest.read_text())["checkpoint"]
+    return path
+
+
 def load_policy(
     path: str | pathlib.Path, epsilon: dict[str, float] | None = None
 ) -> GaussianPolicy | CategoricalPolicy:
@@ -214,10 +223,7 @@ def load_policy(
     objective -> ε > 0, on its training grid or not; default: the grid's middle point),
     as `agent act --epsilon` and `agent eval --epsilon` do: `act` takes the env's
     observations and appends the preference features itself."""
-    path = pathlib.Path(path)
-    latest = path / "checkpoints" / "latest.json"
-    if latest.exists():
-        path = path / "checkpoints" / json.loads(latest.read_text())["checkpoint"]
+    path = checkpoint_dir(path)
     state = json.loads((path / "state.json").read_text())
     if state.get("format_version") != FORMAT_VERSION:
         raise ValueError(
@@ -257,6 +263,20 @@ def load_policy(
     return policy.eval()
 
 
+def grid_points(config: dict[str, Any], names: list[str]) -> list[list[float]]:
+    """The ε vectors (in `names` order) of a conditioned learner `config`'s grid, as
+    agent/src/core/algo/preferences/mod.rs orders them: the product of the conditioned
+    objectives' ε lists in env objective order, earlier objectives varying slowest;
+    one point, the fixed ε, when it is not conditioned."""
+    fixed = {o["name"]: o["epsilon"] for o in config["objectives"]}
+    lists = (config.get("conditioning") or {}).get("epsilon", {})
+    points = [[fixed[name] for name in names]]
+    for name in [n for n in names if n in lists]:
+        k = names.index(name)
+        points = [p[:k] + [v] + p[k + 1 :] for p in points for v in lists[name]]
+    return points
+
+
 def preference_features(config: dict[str, Any], dims: dict[str, Any], epsilon: dict[str, float] | None) -> list[float]:
     """The input features of preference `epsilon` for a learner `config` (`[]` when it
     is not conditioned), transcribed from agent/src/core/algo/preferences/mod.rs: the grid is
@@ -273,13 +293,9 @@ def preference_features(config: dict[str, Any], dims: dict[str, Any], epsilon: d
             )
         return []
     names = list(dims["reward_names"])
-    fixed = {o["name"]: o["epsilon"] for o in config["objectives"]}
     lists = conditioning["epsilon"]
     axes = [name for name in names if name in lists]
-    points = [[fixed[name] for name in names]]
-    for name in axes:
-        k = names.index(name)
-        points = [p[:k] + [v] + p[k + 1 :] for p in points for v in lists[name]]
+    points = grid_points(config, names)
     if epsilon is None:
         eps = points[len(points) // 2]
     else:
