@@ -16,6 +16,14 @@ fi
 stamp=.venv/.mo-mpo-requirements.sha256
 want=$(cat requirements.lock env_server/pyproject.toml | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  # torch with its CUDA libraries makes .venv about 7 GiB and pip unpacks beside it;
+  # say so before pip stops halfway with "No space left on device".
+  need_gib=8
+  free_gib=$(( $(df -Pk . | awk 'NR == 2 {print $4}') / 1024 / 1024 ))
+  if [ "$free_gib" -lt "$need_gib" ]; then
+    echo "error: installing .venv needs about $need_gib GiB free on $(df -P . | awk 'NR == 2 {print $6}') (torch and its CUDA libraries), found $free_gib GiB; the Rust build needs about 5 GiB more for target/" >&2
+    exit 1
+  fi
   echo "==> installing pinned Python packages (torch is large; the first time takes a few minutes)"
   .venv/bin/python -m pip install --quiet --disable-pip-version-check pip==25.3
   .venv/bin/python -m pip install --quiet --disable-pip-version-check -r requirements.lock

@@ -109,6 +109,7 @@ fn check_gaussian_mstep(g: &Value, actions: &Tensor, weights: &Tensor, constrain
         beta_mean: scalar(&g["beta_mean"]),
         beta_cov: scalar(&g["beta_cov"]),
         constraint,
+        per_point: None,
     };
     let out = gaussian_mstep(&online, &target, actions, weights, &region);
     assert_close(&out.kl_mean, &number_or_vector(&g["kl_mean"]), "KL_mu");

@@ -28,7 +28,8 @@
 //! at one grid point ε_g, drawn for it (relabelling) or the one it was collected with;
 //! its states' preference features say which, so policy, critics and Retrace all see
 //! (s, ε_g), and the E-step solves eq. 34 per grid point with that point's eta_g.
-//! The M-step's trust region (alpha) is shared by all grid points.
+//! The M-step's trust region (alpha) is shared by all grid points, or with
+//! `learner.conditioning.trust_region = "per_point"` kept per grid point (`mstep.rs`).
 //!
 //! Shape legend: P members, T snippet length, B snippets, N = (T+1)B states (R: the
 //! real ones), O observation size, M samples, D action dims, A discrete actions, K
@@ -43,6 +44,7 @@ use super::projection::{Bounds, gaussian_ratios, kl_ratio, project, project_part
 use super::real_states::{gather_states, real_states};
 use super::state::{Learner, LearnerError, LearnerStats, to_vec};
 use super::update::{PhaseClock, StepMeasures};
+use crate::core::learner_config::GridTrustRegion;
 use crate::core::nets::PolicyOutput;
 use crate::core::random::Purpose;
 use tch::{Kind, Tensor};
@@ -64,6 +66,8 @@ struct Improvement {
     preferences: Option<StatePreferences>,
     /// `[P, N]`: each member's weight of each state (unconditioned learners).
     state_weight: Tensor,
+    /// Whether the M-step keeps one trust region per grid point.
+    per_point_trust_region: bool,
 }
 
 impl Improvement {
@@ -76,18 +80,32 @@ impl Improvement {
         }
     }
 
-    /// How the M-step averages over the states. One alpha is shared by all grid points
-    /// (module docs), so a conditioned learner's trust region averages over all of
-    /// its states rather than per grid point.
+    /// How the M-step averages over the states: a conditioned learner's weighted
+    /// likelihood (and a shared trust region) averages over all of its states, not
+    /// per grid point.
     fn fit_states(&self) -> StateMean<'_> {
         match self.preferences {
             Some(_) => StateMean::Uniform,
             None => self.states(),
         }
     }
+
+    /// Each state's grid point, when the trust region is kept per grid point.
+    fn trust_region_points(&self) -> Option<&StatePreferences> {
+        self.preferences
+            .as_ref()
+            .filter(|_| self.per_point_trust_region)
+    }
 }
 
 impl Learner {
+    /// Whether an ε-conditioned learner keeps one trust region per grid point.
+    fn per_point_trust_region(&self) -> bool {
+        self.conditioned
+            .as_ref()
+            .is_some_and(|c| c.trust_region == GridTrustRegion::PerPoint)
+    }
+
     /// Q-values for the E-step, `[.., M, N, K]`, from critic heads and closed forms.
     fn estep_q(&self, critic_q: &Tensor, actions: &Tensor) -> Tensor {
         let columns: Vec<Tensor> = self
@@ -188,6 +206,7 @@ impl Learner {
             log_prior: target.log_prior.map(|lp| at(lp, 2)),
             preferences,
             state_weight,
+            per_point_trust_region: self.per_point_trust_region(),
         }
     }
 
@@ -204,6 +223,7 @@ impl Learner {
             &weights,
             &estep.temperature_loss,
             fit.fit_states(),
+            fit.trust_region_points(),
         )
     }
 
@@ -379,6 +399,7 @@ impl Learner {
             log_prior: None,
             preferences,
             state_weight: Tensor::full([1, n], 1.0 / n as f64, (Kind::Float, self.device)),
+            per_point_trust_region: self.per_point_trust_region(),
         };
         let estep = self.estep(&fit);
         let policy_kl = self.fit_improved(&fit, &estep);

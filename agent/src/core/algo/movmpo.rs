@@ -320,6 +320,7 @@ impl Learner {
             &weights,
             temperature_loss,
             StateMean::Members(&pairs.state_weight),
+            None,
         )
     }
 }

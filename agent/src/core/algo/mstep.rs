@@ -17,6 +17,11 @@
 //!
 //! Either way alpha grows while its KL exceeds its bound.
 //!
+//! ε-conditioned with a trust region per grid point (`TrustRegion::per_point`): the
+//! KLs are averaged over each grid point's states instead, against that point's
+//! multipliers (`[G]` or `[G * D]`); each state's KL enters the policy loss with its
+//! own point's alpha, and a point without states in the batch keeps its alpha.
+//!
 //! Categorical (A.2): `-mean_s sum_a w_a log pi(a|s) + sg(alpha) KL(pi_old || pi)` and
 //! `alpha (beta - sg(KL))`.
 //!
@@ -26,9 +31,11 @@
 //! the losses the sums of the members' losses.
 //!
 //! Shape legend: M samples (or A actions), B states, D action dims, P multipliers per
-//! trust-region part (1 summed, D per dimension); leading `..` member axes.
+//! trust-region part (1 summed, D per dimension; G times that per grid point), G grid
+//! points; leading `..` member axes.
 
 use super::estep::StateMean;
+use super::preferences::StatePreferences;
 pub use crate::core::learner_config::KlConstraint;
 use crate::core::nets::GaussianParams;
 use tch::{Kind, Tensor};
@@ -61,6 +68,71 @@ pub struct TrustRegion<'a> {
     pub beta_mean: f64,
     /// beta_Sigma.
     pub beta_cov: f64,
+    /// ε-conditioned with one set of multipliers per grid point
+    /// (`learner.conditioning.trust_region = "per_point"`): each state's grid point,
+    /// and alpha_mu, alpha_Sigma are `[G]` (summed) or `[G * D]` (per dimension).
+    pub per_point: Option<&'a StatePreferences>,
+}
+
+/// The trust region's constrained KLs lined up with their multipliers, each
+/// multiplier's weight in the policy loss and whether its constraint is active.
+struct Constrained {
+    mean: Tensor,
+    cov: Tensor,
+    /// Weight of each `alpha * KL` term in the policy loss.
+    penalty_weight: Tensor,
+    /// 1 where a multiplier's constraint has states in the batch.
+    active: Tensor,
+}
+
+/// Lines the KLs up with the multipliers: over all states (one multiplier, or one
+/// per dimension), or per grid point. Per grid point, each state's KL is penalised
+/// with its own point's alpha (the penalty is the mean over states of
+/// `alpha_g(s) KL(s)`: point g's term weighs its share of the states), while each
+/// alpha_g's own loss sees its point's KL against beta unweighted, as the shared
+/// alpha does; a point without states in the batch leaves its alpha unchanged.
+fn constrained(
+    online: &GaussianParams,
+    target: &GaussianParams,
+    region: &TrustRegion<'_>,
+    states: StateMean<'_>,
+) -> (DecoupledKl, Constrained) {
+    let kl = trust_region_kl(online, target, region.constraint, states);
+    let against_alpha = |kl: &Tensor| match region.constraint {
+        KlConstraint::Summed => kl.unsqueeze(-1),
+        KlConstraint::PerDimension => kl.shallow_clone(),
+    };
+    let lined_up = match region.per_point {
+        None => Constrained {
+            mean: against_alpha(&kl.mean),
+            cov: against_alpha(&kl.cov),
+            penalty_weight: Tensor::ones([], (Kind::Float, kl.mean.device())),
+            active: Tensor::ones([], (Kind::Float, kl.mean.device())),
+        },
+        Some(points) => {
+            let DecoupledKl { mean, cov } = decoupled_kl(online, target);
+            let d = mean.size()[mean.dim() - 1];
+            // [.., G, D] -> [.., G] summed or [.., G * D] per dimension, g-major.
+            let per_point = |kl: &Tensor| {
+                let kl = points.mean_per_point(kl);
+                match region.constraint {
+                    KlConstraint::Summed => kl.sum_dim_intlist(-1, false, Kind::Float),
+                    KlConstraint::PerDimension => kl.flatten(-2, -1),
+                }
+            };
+            let per_multiplier = |g: Tensor| match region.constraint {
+                KlConstraint::Summed => g,
+                KlConstraint::PerDimension => g.unsqueeze(-1).repeat([1, d]).flatten(0, 1),
+            };
+            Constrained {
+                mean: per_point(&mean),
+                cov: per_point(&cov),
+                penalty_weight: per_multiplier(points.share()),
+                active: per_multiplier(points.present()),
+            }
+        }
+    };
+    (kl, lined_up)
 }
 
 /// The decoupled KL terms of one state and action dimension.
@@ -145,21 +217,23 @@ pub fn gaussian_mstep_with(
     let nll = -states
         .over_state_rows(&(weights.detach() * log_lik).sum_dim_intlist(-2, false, Kind::Float))
         .sum(Kind::Float);
+    let (kl, lined_up) = constrained(online, &target, region, states);
+    let Constrained {
+        mean: kl_mu,
+        cov: kl_sigma,
+        penalty_weight,
+        active,
+    } = lined_up;
+    let penalty = (region.alpha_mean.detach() * &kl_mu * &penalty_weight).sum(Kind::Float)
+        + (region.alpha_cov.detach() * &kl_sigma * &penalty_weight).sum(Kind::Float);
+    let policy_loss = nll + penalty;
+    let alpha_loss = (region.alpha_mean * (region.beta_mean - kl_mu.detach()) * &active)
+        .sum(Kind::Float)
+        + (region.alpha_cov * (region.beta_cov - kl_sigma.detach()) * &active).sum(Kind::Float);
     let DecoupledKl {
         mean: kl_mean,
         cov: kl_cov,
-    } = trust_region_kl(online, &target, region.constraint, states);
-    // Each multiplier against its KL: one per member (summed) or one per dimension.
-    let against_alpha = |kl: &Tensor| match region.constraint {
-        KlConstraint::Summed => kl.unsqueeze(-1),
-        KlConstraint::PerDimension => kl.shallow_clone(),
-    };
-    let (kl_mu, kl_sigma) = (against_alpha(&kl_mean), against_alpha(&kl_cov));
-    let penalty = (region.alpha_mean.detach() * &kl_mu).sum(Kind::Float)
-        + (region.alpha_cov.detach() * &kl_sigma).sum(Kind::Float);
-    let policy_loss = nll + penalty;
-    let alpha_loss = (region.alpha_mean * (region.beta_mean - kl_mu.detach())).sum(Kind::Float)
-        + (region.alpha_cov * (region.beta_cov - kl_sigma.detach())).sum(Kind::Float);
+    } = kl;
     GaussianMStepOutput {
         policy_loss,
         alpha_loss,
@@ -255,5 +329,79 @@ mod tests {
         };
         let kl = decoupled_kl(&moved, &target);
         assert!(kl.mean.min().double_value(&[]) > 0.0 && kl.cov.min().double_value(&[]) > 0.0);
+    }
+
+    /// Spread, repeatable values of `shape` (no global generator): sin of 1, 2, ...
+    fn spread(shape: &[i64], phase: f64) -> Tensor {
+        let count: i64 = shape.iter().product();
+        (Tensor::arange(count, (Kind::Float, Device::Cpu)) * 1.7 + phase)
+            .sin()
+            .reshape(shape)
+    }
+
+    #[test]
+    fn a_per_point_trust_region_penalises_each_state_with_its_points_alpha() {
+        let (n, d, m) = (6, 3, 4);
+        let target = GaussianParams {
+            mean: spread(&[n, d], 0.0),
+            std: spread(&[n, d], 1.0).abs() + 0.2,
+        };
+        let online = GaussianParams {
+            mean: &target.mean + spread(&[n, d], 2.0) * 0.3,
+            std: &target.std * (spread(&[n, d], 3.0) * 0.2 + 1.0),
+        };
+        let actions = spread(&[m, n, d], 4.0);
+        let weights = spread(&[m, n], 5.0).abs();
+        // Three grid points; the last has no state in the batch.
+        let points = StatePreferences::new(
+            Tensor::from_slice(&[0i64, 0, 1, 1, 1, 0]),
+            &Tensor::ones([3, 1], (Kind::Float, Device::Cpu)),
+        );
+        for (constraint, per_point_len) in [
+            (KlConstraint::Summed, 3),
+            (KlConstraint::PerDimension, 3 * d),
+        ] {
+            let shared_len = if per_point_len == 3 { 1 } else { d };
+            let run = |len: i64, per_point: Option<&StatePreferences>| {
+                let alpha_mean =
+                    Tensor::full([len], 0.7, (Kind::Float, Device::Cpu)).set_requires_grad(true);
+                let alpha_cov =
+                    Tensor::full([len], 2.0, (Kind::Float, Device::Cpu)).set_requires_grad(true);
+                let region = TrustRegion {
+                    alpha_mean: &alpha_mean,
+                    alpha_cov: &alpha_cov,
+                    constraint,
+                    beta_mean: 0.05,
+                    beta_cov: 1e-3,
+                    per_point,
+                };
+                let out = gaussian_mstep(&online, &target, &actions, &weights, &region);
+                out.alpha_loss.backward();
+                (out.policy_loss.double_value(&[]), alpha_mean.grad())
+            };
+            // Equal multipliers: each state's KL weighs the same as with one shared alpha.
+            let (shared_loss, _) = run(shared_len, None);
+            let (loss, grad) = run(per_point_len, Some(&points));
+            assert!((shared_loss - loss).abs() < 1e-5, "{shared_loss} vs {loss}");
+            // Each alpha_g's gradient is beta - KL_g over its own states; none at point 2.
+            let kl = decoupled_kl(&online, &target).mean.detach();
+            let grad = grad.reshape([3, -1]);
+            for (g, rows) in [(0usize, vec![0i64, 1, 5]), (1, vec![2, 3, 4])] {
+                let own =
+                    kl.index_select(0, &Tensor::from_slice(&rows))
+                        .mean_dim(0, false, Kind::Float);
+                let own = match constraint {
+                    KlConstraint::Summed => own.sum(Kind::Float).reshape([1]),
+                    KlConstraint::PerDimension => own,
+                };
+                let want = -(own - 0.05);
+                let got = grad.get(g as i64);
+                assert!(
+                    (&got - &want).abs().max().double_value(&[]) < 1e-5,
+                    "{constraint:?} point {g}: {got:?} vs {want:?}"
+                );
+            }
+            assert_eq!(grad.get(2).abs().max().double_value(&[]), 0.0);
+        }
     }
 }

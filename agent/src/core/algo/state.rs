@@ -29,7 +29,7 @@ use super::population::check_population;
 use super::preferences::{Conditioned, PreferenceGrid};
 pub use super::stats::{LearnerStats, PhaseTimings};
 use crate::core::device::synchronize;
-use crate::core::learner_config::{ConfigError, LearnerConfig, SharedSettings};
+use crate::core::learner_config::{ConfigError, GridTrustRegion, LearnerConfig, SharedSettings};
 use crate::core::nets::{ActOutput, Acting, ActionKind, Members, PolicySnapshot, SnapshotError};
 use crate::core::random::{Purpose, RandomStream, StreamKey};
 use std::cell::Cell;
@@ -107,14 +107,19 @@ pub(crate) fn ms_since(start: Instant, device: Device) -> f64 {
 
 /// The duals at their initial values: `temperatures` eta, and alpha_mu and
 /// alpha_Sigma (one each, or one per action dimension with a per-dimension KL
-/// constraint) or the categorical alpha, as the action space has them.
+/// constraint; `trust_regions` times that with a per-grid-point trust region) or the
+/// categorical alpha, as the action space has them.
 fn initial_duals(
     settings: &SharedSettings,
     action: ActionKind,
-    temperatures: usize,
+    counts: DualCounts,
     device: Device,
     members: Members,
 ) -> Duals {
+    let DualCounts {
+        temperatures,
+        trust_regions,
+    } = counts;
     let part = |init: f64, per_part: usize, min: f64| AlphaPart {
         init: vec![init; per_part],
         min,
@@ -123,8 +128,8 @@ fn initial_duals(
     let alphas = match action {
         ActionKind::Continuous { dim } => {
             let per_part = match settings.kl_constraint {
-                KlConstraint::Summed => 1,
-                KlConstraint::PerDimension => dim as usize,
+                KlConstraint::Summed => trust_regions,
+                KlConstraint::PerDimension => trust_regions * dim as usize,
             };
             vec![
                 part(settings.init_alpha_mean, per_part, min.mean),
@@ -146,6 +151,15 @@ fn initial_duals(
         device,
         members,
     )
+}
+
+/// How many multipliers of each kind a learner keeps.
+#[derive(Debug, Clone, Copy)]
+struct DualCounts {
+    /// eta: one per objective (and grid point, when ε-conditioned).
+    temperatures: usize,
+    /// Sets of trust-region multipliers: one, or one per grid point.
+    trust_regions: usize,
 }
 
 /// The members' values, member after member, as one tensor of `shape` on `device`.
@@ -197,8 +211,14 @@ impl Learner {
             .transpose()?;
         // An ε-conditioned learner has one eta per objective and grid point.
         let grid_points = conditioned.as_ref().map_or(1, |c| c.grid.len());
-        let temperatures = grid_points * bound.objectives.len();
-        let duals = initial_duals(&settings, dims.action, temperatures, device, members);
+        let counts = DualCounts {
+            temperatures: grid_points * bound.objectives.len(),
+            trust_regions: match conditioned.as_ref().map(|c| c.trust_region) {
+                Some(GridTrustRegion::PerPoint) => grid_points,
+                _ => 1,
+            },
+        };
+        let duals = initial_duals(&settings, dims.action, counts, device, members);
         let k = bound.objectives.len() as i64;
         let epsilon = member_tensor(
             bounds

@@ -9,6 +9,7 @@
 
 use super::estep::StateMean;
 use super::mstep::{TrustRegion, categorical_mstep_with, gaussian_mstep_with};
+use super::preferences::StatePreferences;
 use super::state::{Critics, Learner, LearnerError, LearnerStats, PhaseTimings, ms_since, to_vec};
 use crate::core::nets::PolicyOutput;
 use std::time::Instant;
@@ -114,6 +115,9 @@ impl Learner {
     /// unused, `weights [.., A, N]`; leading member axes `..` (each member's mean over
     /// its states by `states`). The loss is `-mean_N sum_M w log pi`, so weights that
     /// sum to 1 over the batch must come scaled by N. Returns `[P, parts]`.
+    /// `per_point`: each state's grid point, when an ε-conditioned learner keeps one
+    /// trust region per grid point (Gaussian policies).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn fit_policy(
         &mut self,
         online: &PolicyOutput,
@@ -122,6 +126,7 @@ impl Learner {
         weights: &Tensor,
         temperature_loss: &Tensor,
         states: StateMean<'_>,
+        per_point: Option<&StatePreferences>,
     ) -> Tensor {
         // [.., parts, multipliers per part]
         let alpha = self.duals.alpha();
@@ -138,6 +143,7 @@ impl Learner {
                     beta_mean: s.beta_mean,
                     beta_cov: s.beta_cov,
                     constraint: s.kl_constraint,
+                    per_point,
                 };
                 let out = gaussian_mstep_with(online, target, actions, weights, &region, states);
                 let parts = [&out.kl_mean, &out.kl_cov].map(per_member);

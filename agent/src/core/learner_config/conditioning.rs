@@ -30,6 +30,25 @@ pub struct ConditioningConfig {
     /// behaviour policy having acted with another ε.
     #[serde(default = "default_relabel")]
     pub relabel: bool,
+    /// How the M-step's trust region (alpha_mu, alpha_Sigma) covers the grid:
+    /// `"shared"`, one set of multipliers for the KL averaged over all states, or
+    /// `"per_point"`, one set per grid point for the KL averaged over that point's
+    /// states, each state's KL penalised with its own point's alpha (the temperatures
+    /// are per grid point either way). The paper has no conditioned learner; shared
+    /// is what a sweep's single run has.
+    #[serde(default)]
+    pub trust_region: GridTrustRegion,
+}
+
+/// Whether the grid points share the M-step's trust-region multipliers.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GridTrustRegion {
+    /// One alpha_mu and alpha_Sigma for the KL over all states.
+    #[default]
+    Shared,
+    /// One alpha_mu and alpha_Sigma per grid point, for the KL over its states.
+    PerPoint,
 }
 
 fn default_relabel() -> bool {

@@ -13,7 +13,7 @@ mod network;
 mod shared;
 mod vmpo;
 
-pub use conditioning::{ConditioningConfig, MAX_GRID_POINTS};
+pub use conditioning::{ConditioningConfig, GridTrustRegion, MAX_GRID_POINTS};
 pub use error::ConfigError;
 use error::{check, finite_pos};
 pub use mpo::MpoConfig;

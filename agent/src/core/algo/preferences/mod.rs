@@ -20,7 +20,8 @@ use std::collections::BTreeMap;
 use tch::{Device, Kind, Tensor};
 
 use super::objectives::{BoundObjective, BoundObjectives, LearnerDims};
-use crate::core::learner_config::{ConditioningConfig, ConfigError};
+use crate::core::learner_config::{ConditioningConfig, ConfigError, GridTrustRegion};
+use crate::core::nets::ActionKind;
 use crate::core::random::RandomStream;
 
 /// One conditioned objective: its place among the K and its feature map.
@@ -225,6 +226,8 @@ pub(crate) struct Conditioned {
     pub features: Tensor,
     /// Train each snippet at a freshly drawn grid point.
     pub relabel: bool,
+    /// Whether the grid points share the M-step's trust region.
+    pub trust_region: GridTrustRegion,
 }
 
 impl Conditioned {
@@ -247,10 +250,20 @@ impl Conditioned {
                 got: format!("{} features", dims.preference_features()),
             });
         }
+        if config.trust_region == GridTrustRegion::PerPoint
+            && matches!(dims.action, ActionKind::Discrete { .. })
+        {
+            return Err(ConfigError::Invalid {
+                field: "learner.conditioning.trust_region".into(),
+                requirement: "\"shared\" for a discrete action space (the per-grid-point trust region is kept for Gaussian policies)".into(),
+                got: "\"per_point\"".into(),
+            });
+        }
         Ok(Self {
             epsilon: grid.epsilon_table(device),
             features: grid.feature_table(device),
             relabel: config.relabel,
+            trust_region: config.trust_region,
             grid,
         })
     }
@@ -295,6 +308,8 @@ pub struct StatePreferences {
     /// `[N]` 1 / (states of the batch at the same grid point): each grid point's
     /// temperature dual averages over its own states (eq. 34 per grid point).
     pub state_weight: Tensor,
+    /// `[G]` float: how many of the N states are at each grid point.
+    pub counts: Tensor,
 }
 
 impl StatePreferences {
@@ -307,12 +322,36 @@ impl StatePreferences {
             epsilon: epsilon_table.index_select(0, &index),
             index,
             state_weight,
+            counts,
         }
     }
 
     /// The same for a subset of the states (`rows [N']`).
     pub fn rows(&self, rows: &Tensor, epsilon_table: &Tensor) -> Self {
         Self::new(self.index.index_select(0, rows), epsilon_table)
+    }
+
+    /// `x [.., N, D]` averaged over each grid point's states: `[.., G, D]`, 0 at a
+    /// point without states in the batch.
+    pub fn mean_per_point(&self, x: &Tensor) -> Tensor {
+        let mut size = x.size();
+        let n = size.len() - 2;
+        size[n] = self.counts.size()[0];
+        Tensor::zeros(size.as_slice(), (x.kind(), x.device())).index_add(
+            n as i64,
+            &self.index,
+            &(x * self.state_weight.unsqueeze(-1)),
+        )
+    }
+
+    /// `[G]` each grid point's share of the N states (summing to 1).
+    pub fn share(&self) -> Tensor {
+        &self.counts / self.counts.sum(Kind::Float)
+    }
+
+    /// `[G]` 1 at the grid points with states in the batch, 0 elsewhere.
+    pub fn present(&self) -> Tensor {
+        self.counts.gt(0.0).to_kind(Kind::Float)
     }
 
     /// Per-state temperatures `[N, K]` from the `[G, K]` table.

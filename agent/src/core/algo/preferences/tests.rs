@@ -22,6 +22,7 @@ fn grid() -> PreferenceGrid {
             ("other".into(), vec![0.5, 0.05]),
         ]),
         relabel: true,
+        trust_region: Default::default(),
     };
     PreferenceGrid::new(&cfg, &objectives())
 }
