@@ -153,6 +153,7 @@ fn conditioned_bandit(values: &[f64], trust_region: GridTrustRegion) -> Learner 
         epsilon: [("right".to_string(), values.to_vec())].into(),
         relabel: true,
         trust_region,
+        total_epsilon: None,
     });
     let dims = common::bandit_dims().with_preference_features(1);
     Learner::new(cfg, dims, Device::Cpu).unwrap()

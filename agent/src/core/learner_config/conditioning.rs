@@ -38,6 +38,14 @@ pub struct ConditioningConfig {
     /// is what a sweep's single run has.
     #[serde(default)]
     pub trust_region: GridTrustRegion,
+    /// Rescale every grid point's ε vector, over all objectives, to sum to this,
+    /// keeping its ratios (the preference, Fig. 5): the E-step then lets every grid
+    /// point move the policy by the same total KL, where the lists as given let a
+    /// point whose ε are all large pull harder on the shared network than one whose
+    /// ε are small. Features, fronts and `--epsilon` keep the ε as listed. Not in the
+    /// paper (which trains one ε vector per run); `None` (default): ε as listed.
+    #[serde(default)]
+    pub total_epsilon: Option<f64>,
 }
 
 /// Whether the grid points share the M-step's trust-region multipliers.
@@ -83,6 +91,14 @@ impl ConditioningConfig {
             "at least one objective with its list of ε values",
             &self.epsilon,
         )?;
+        if let Some(total) = self.total_epsilon {
+            check(
+                total.is_finite() && total > 0.0,
+                "learner.conditioning.total_epsilon",
+                "a number > 0",
+                total,
+            )?;
+        }
         let mut points = 1usize;
         for (name, values) in &self.epsilon {
             let field = format!("learner.conditioning.epsilon.{name}");

@@ -206,6 +206,16 @@ impl PreferenceGrid {
             .to_device(device)
     }
 
+    /// `[G, K]` ε table as the E-step uses it: as listed, or each row rescaled to sum
+    /// to `total` (`learner.conditioning.total_epsilon`), keeping its ratios.
+    pub fn estep_epsilon_table(&self, total: Option<f64>, device: Device) -> Tensor {
+        let listed = self.epsilon_table(device);
+        match total {
+            Some(total) => &listed * (total / listed.sum_dim_intlist(-1, true, Kind::Float)),
+            None => listed,
+        }
+    }
+
     /// `[G, F]` feature table on `device`.
     pub fn feature_table(&self, device: Device) -> Tensor {
         let flat: Vec<f32> = (0..self.len()).flat_map(|g| self.features(g)).collect();
@@ -220,7 +230,8 @@ impl PreferenceGrid {
 pub(crate) struct Conditioned {
     /// The grid of preferences.
     pub grid: PreferenceGrid,
-    /// `[G, K]` ε of every grid point.
+    /// `[G, K]` ε of every grid point as the E-step uses it (rescaled to
+    /// `total_epsilon` when set).
     pub epsilon: Tensor,
     /// `[G, F]` input features of every grid point.
     pub features: Tensor,
@@ -260,7 +271,7 @@ impl Conditioned {
             });
         }
         Ok(Self {
-            epsilon: grid.epsilon_table(device),
+            epsilon: grid.estep_epsilon_table(config.total_epsilon, device),
             features: grid.feature_table(device),
             relabel: config.relabel,
             trust_region: config.trust_region,

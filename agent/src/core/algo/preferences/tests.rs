@@ -23,6 +23,7 @@ fn grid() -> PreferenceGrid {
         ]),
         relabel: true,
         trust_region: Default::default(),
+        total_epsilon: None,
     };
     PreferenceGrid::new(&cfg, &objectives())
 }
@@ -124,4 +125,30 @@ fn relabelled_features_read_back_as_their_grid_points() {
     assert_eq!(collected_index(&relabelled, &table), index);
     // Every time step of a snippet carries the snippet's features.
     assert_eq!(relabelled.get(0), relabelled.get(2));
+}
+
+#[test]
+fn a_total_epsilon_rescales_every_point_keeping_its_ratios() {
+    let g = grid();
+    let listed = g.epsilon_table(Device::Cpu);
+    assert_eq!(
+        Vec::<f32>::try_from(g.estep_epsilon_table(None, Device::Cpu).flatten(0, 1)).unwrap(),
+        Vec::<f32>::try_from(listed.flatten(0, 1)).unwrap()
+    );
+    let scaled = g.estep_epsilon_table(Some(0.2), Device::Cpu);
+    for point in 0..g.len() {
+        let row = Vec::<f32>::try_from(scaled.get(point as i64)).unwrap();
+        let sum: f32 = row.iter().sum();
+        assert!((sum - 0.2).abs() < 1e-6, "point {point}: {row:?}");
+        // The same ratios as listed: each ε over the point's first.
+        let eps = g.epsilon(point);
+        for (k, &e) in eps.iter().enumerate() {
+            let want = e / eps[0];
+            let got = f64::from(row[k] / row[0]);
+            assert!(
+                (got - want).abs() < 1e-5 * want,
+                "point {point}, {k}: {got} vs {want}"
+            );
+        }
+    }
 }
