@@ -176,6 +176,10 @@ def grid_point(config: dict, names: list[str], preference: dict[str, float] | No
         asked[names.index(name)] = value
     g = min(range(len(points)), key=lambda i: sum(abs(math.log(a / b)) for a, b in zip(points[i], asked)))
     table = np.array(temperature).reshape(len(points), -1)
+    # The E-step's ε: rescaled to one sum when the run sets total_epsilon.
+    total = (config.get("conditioning") or {}).get("total_epsilon")
+    if total is not None:
+        asked = [a * total / sum(asked) for a in asked]
     return asked, table[g]
 
 
