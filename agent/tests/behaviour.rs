@@ -7,6 +7,7 @@ mod seed;
 
 use agent::core::algo::Learner;
 use agent::core::learner_config::{Algorithm, ConditioningConfig, GridTrustRegion};
+use agent::core::nets::ActionKind;
 use tch::{Device, Kind, Tensor};
 
 /// One test at a time (`common::exclusive_rng`), libtorch's generator from the test
@@ -141,9 +142,12 @@ fn kl_to_the_target_policy_stays_near_beta() {
     );
 }
 
-/// A bandit learner conditioned on ε_right over `values` (ε_left fixed), with the
-/// settings of `bandit`.
-fn conditioned_bandit(values: &[f64], trust_region: GridTrustRegion) -> Learner {
+/// A bandit learner's config conditioned on ε_right over `values` (ε_left fixed),
+/// with the settings of `bandit`.
+fn conditioned_bandit_config(
+    values: &[f64],
+    trust_region: GridTrustRegion,
+) -> agent::core::learner_config::LearnerConfig {
     let mut cfg = common::bandit_config(Algorithm::MoMpo, [0.01, 0.01], vec![8], learner_seed());
     cfg.mpo.learning_rate = 3e-3;
     cfg.mpo.dual_learning_rate = 0.1;
@@ -155,8 +159,28 @@ fn conditioned_bandit(values: &[f64], trust_region: GridTrustRegion) -> Learner 
         trust_region,
         total_epsilon: None,
     });
+    cfg
+}
+
+/// The conditioned bandit learner of `conditioned_bandit_config`.
+fn conditioned_bandit(values: &[f64], trust_region: GridTrustRegion) -> Learner {
+    let cfg = conditioned_bandit_config(values, trust_region);
     let dims = common::bandit_dims().with_preference_features(1);
     Learner::new(cfg, dims, Device::Cpu).unwrap()
+}
+
+#[test]
+fn a_per_point_trust_region_for_discrete_actions_is_refused_by_name() {
+    let cfg = conditioned_bandit_config(&[0.01, 0.1], GridTrustRegion::PerPoint);
+    let mut dims = common::bandit_dims().with_preference_features(1);
+    dims.action = ActionKind::Discrete { n: 4 };
+    let err = Learner::new(cfg, dims, Device::Cpu)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("learner.conditioning.trust_region") && err.contains("per_point"),
+        "{err}"
+    );
 }
 
 #[test]

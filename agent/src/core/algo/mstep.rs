@@ -331,7 +331,7 @@ mod tests {
         assert!(kl.mean.min().double_value(&[]) > 0.0 && kl.cov.min().double_value(&[]) > 0.0);
     }
 
-    /// Spread, repeatable values of `shape` (no global generator): sin of 1, 2, ...
+    /// Spread, repeatable values of `shape` (no global generator): sin(1.7 i + phase).
     fn spread(shape: &[i64], phase: f64) -> Tensor {
         let count: i64 = shape.iter().product();
         (Tensor::arange(count, (Kind::Float, Device::Cpu)) * 1.7 + phase)
