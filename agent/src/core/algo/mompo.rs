@@ -66,8 +66,6 @@ struct Improvement {
     preferences: Option<StatePreferences>,
     /// `[P, N]`: each member's weight of each state (unconditioned learners).
     state_weight: Tensor,
-    /// Whether the M-step keeps one trust region per grid point.
-    per_point_trust_region: bool,
 }
 
 impl Improvement {
@@ -88,13 +86,6 @@ impl Improvement {
             Some(_) => StateMean::Uniform,
             None => self.states(),
         }
-    }
-
-    /// Each state's grid point, when the trust region is kept per grid point.
-    fn trust_region_points(&self) -> Option<&StatePreferences> {
-        self.preferences
-            .as_ref()
-            .filter(|_| self.per_point_trust_region)
     }
 }
 
@@ -206,7 +197,6 @@ impl Learner {
             log_prior: target.log_prior.map(|lp| at(lp, 2)),
             preferences,
             state_weight,
-            per_point_trust_region: self.per_point_trust_region(),
         }
     }
 
@@ -223,7 +213,9 @@ impl Learner {
             &weights,
             &estep.temperature_loss,
             fit.fit_states(),
-            fit.trust_region_points(),
+            fit.preferences
+                .as_ref()
+                .filter(|_| self.per_point_trust_region()),
         )
     }
 
@@ -399,7 +391,6 @@ impl Learner {
             log_prior: None,
             preferences,
             state_weight: Tensor::full([1, n], 1.0 / n as f64, (Kind::Float, self.device)),
-            per_point_trust_region: self.per_point_trust_region(),
         };
         let estep = self.estep(&fit);
         let policy_kl = self.fit_improved(&fit, &estep);

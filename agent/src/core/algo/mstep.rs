@@ -97,7 +97,8 @@ fn constrained(
     region: &TrustRegion<'_>,
     states: StateMean<'_>,
 ) -> (DecoupledKl, Constrained) {
-    let kl = trust_region_kl(online, target, region.constraint, states);
+    let per_state = decoupled_kl(online, target);
+    let kl = bounded_kl(&per_state, region.constraint, states);
     let against_alpha = |kl: &Tensor| match region.constraint {
         KlConstraint::Summed => kl.unsqueeze(-1),
         KlConstraint::PerDimension => kl.shallow_clone(),
@@ -110,7 +111,7 @@ fn constrained(
             active: Tensor::ones([], (Kind::Float, kl.mean.device())),
         },
         Some(points) => {
-            let DecoupledKl { mean, cov } = decoupled_kl(online, target);
+            let DecoupledKl { mean, cov } = &per_state;
             let d = mean.size()[mean.dim() - 1];
             // [.., G, D] -> [.., G] summed or [.., G * D] per dimension, g-major.
             let per_point = |kl: &Tensor| {
@@ -125,8 +126,8 @@ fn constrained(
                 KlConstraint::PerDimension => g.unsqueeze(-1).repeat([1, d]).flatten(0, 1),
             };
             Constrained {
-                mean: per_point(&mean),
-                cov: per_point(&cov),
+                mean: per_point(mean),
+                cov: per_point(cov),
                 penalty_weight: per_multiplier(points.share()),
                 active: per_multiplier(points.present()),
             }
@@ -166,7 +167,11 @@ pub fn trust_region_kl(
     constraint: KlConstraint,
     states: StateMean<'_>,
 ) -> DecoupledKl {
-    let kl = decoupled_kl(online, target);
+    bounded_kl(&decoupled_kl(online, target), constraint, states)
+}
+
+/// Per-state decoupled KLs `[.., B, D]` reduced as [`trust_region_kl`] does.
+fn bounded_kl(kl: &DecoupledKl, constraint: KlConstraint, states: StateMean<'_>) -> DecoupledKl {
     let constrained = |kl: &Tensor| {
         let over_states = states.over_states(kl);
         match constraint {
