@@ -3,7 +3,7 @@
 //! actions for fixed observations, and `agent/tests/python_policy.py` loads the same
 //! checkpoint in PyTorch and compares its actions (within 1e-5), then evaluates it
 //! through RemoteEnv with `agent eval`'s seeds and instances, which must give the
-//! episode returns `agent eval` reports. On DST (categorical) and pendulum (Gaussian,
+//! episode returns `agent eval` (the real binary) writes to its `--json` report. On DST (categorical) and pendulum (Gaussian,
 //! tanh mean, Box bounds [-2, 2]); and A.3's mocap torso (encoder and latent) on an
 //! untrained learner's checkpoint, actions only; and an ε-conditioned pendulum policy
 //! at a preference off its training grid.
@@ -21,11 +21,8 @@ mod seed;
 use std::path::Path;
 use std::process::Command;
 
-use agent::core::algo::preferences::parse_setting;
-use agent::env::connection::ConnectionConfig;
 use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::runtime::checkpoint::run::{RunProgress, write_run_checkpoint};
-use agent::runtime::eval::evaluate_checkpoint_at;
 use agent::runtime::run_config::TrainConfig;
 use agent::runtime::train::{TrainOptions, train};
 use cli::python_json;
@@ -92,33 +89,34 @@ async fn agent_and_python_agree(
         "Python's actions differ from the agent's by {diff}"
     );
 
-    let setting = epsilon.map(|e| parse_setting(e).unwrap());
-    let report = evaluate_checkpoint_at(
-        &run,
-        setting.as_ref(),
-        &[address],
-        &ConnectionConfig::default(),
-        episodes,
-        None,
-    )
-    .await
-    .unwrap();
+    let report = agent_eval(&run, &address, episodes, epsilon, &dir.join("eval.json"));
+    let episodes_agent = report["episodes"].as_array().unwrap();
+    // The report's means are its episodes' means.
+    for (k, mean) in report["mean_return"].as_array().unwrap().iter().enumerate() {
+        let returns: Vec<f64> = episodes_agent
+            .iter()
+            .map(|e| e["episode_return"][k].as_f64().unwrap())
+            .collect();
+        let expected = returns.iter().sum::<f64>() / returns.len() as f64;
+        assert!((mean.as_f64().unwrap() - expected).abs() <= 1e-9 * expected.abs().max(1.0));
+    }
     let theirs = python["episodes"].as_array().unwrap();
-    assert_eq!(theirs.len(), report.episodes.len());
+    assert_eq!(theirs.len(), episodes_agent.len());
     let mut largest_return_diff = 0.0f64;
-    for (agent, python) in report.episodes.iter().zip(theirs) {
-        assert_eq!(python["env_index"], agent.env_index);
-        assert_eq!(python["length"], agent.length);
+    for (agent, python) in episodes_agent.iter().zip(theirs) {
+        assert_eq!(python["env_index"], agent["env_index"]);
+        assert_eq!(python["length"], agent["length"]);
         let returns: Vec<f64> = serde_json::from_value(python["episode_return"].clone()).unwrap();
-        for (p, a) in returns.iter().zip(&agent.episode_return) {
+        let agent_returns: Vec<f64> =
+            serde_json::from_value(agent["episode_return"].clone()).unwrap();
+        for (p, a) in returns.iter().zip(&agent_returns) {
             largest_return_diff = largest_return_diff.max((p - a).abs());
             // The same actions in the same seeded envs: the same returns, up to float
             // noise in the env's sums (seeds 1-5 and 0: pendulum's differed by at most
             // 6.9e-4 absolute, each within this relative bar).
             assert!(
                 (p - a).abs() <= 1e-6 * a.abs().max(1.0),
-                "episode returns: agent {:?}, Python {returns:?}",
-                agent.episode_return
+                "episode returns: agent {agent_returns:?}, Python {returns:?}"
             );
         }
     }
@@ -187,6 +185,31 @@ async fn a_state_independent_std_policy_in_pytorch_acts_and_returns_as_the_agent
 }
 
 /// `agent act` (the real binary) on `obs`, writing `actions`, at `epsilon` if given.
+/// `agent eval` (the real binary) of `run` through `address`, its `--json` report.
+fn agent_eval(
+    run: &Path,
+    address: &str,
+    episodes: usize,
+    epsilon: Option<&str>,
+    json: &Path,
+) -> serde_json::Value {
+    let eval = Command::new(env!("CARGO_BIN_EXE_agent"))
+        .args(["eval", "--checkpoint"])
+        .arg(run)
+        .args(["--server", address, "--episodes", &episodes.to_string()])
+        .args(epsilon.map_or(vec![], |e| vec!["--epsilon", e]))
+        .arg("--json")
+        .arg(json)
+        .output()
+        .unwrap();
+    assert!(
+        eval.status.success(),
+        "{}",
+        String::from_utf8_lossy(&eval.stderr)
+    );
+    serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap()
+}
+
 fn agent_act(run: &Path, obs: &Path, actions: &Path, epsilon: Option<&str>) {
     let act = Command::new(env!("CARGO_BIN_EXE_agent"))
         .args(["act", "--checkpoint"])

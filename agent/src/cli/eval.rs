@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use agent::core::algo::preferences::parse_setting;
 use agent::env::connection::ConnectionConfig;
 use agent::runtime::eval::evaluate_checkpoint_at;
-use anyhow::Result;
+use anyhow::{Context, Result};
 
 use super::args::{ConnectionArgs, VideoArgs, server_address};
 use super::servers::{server_addresses, stop};
@@ -40,6 +40,11 @@ pub(crate) struct EvalArgs {
     /// default: the grid's middle point.
     #[arg(long, value_name = "NAME=EPS,...", value_parser = parse_setting)]
     epsilon: Option<BTreeMap<String, f64>>,
+    /// Also write the report as JSON here: each episode's returns (undiscounted and
+    /// discounted), env instance and length, the means, γ and the objectives' names,
+    /// for scripts (`scripts/bench_hold.sh` reads it) rather than the printout.
+    #[arg(long, value_name = "PATH")]
+    json: Option<PathBuf>,
 }
 
 impl EvalArgs {
@@ -59,7 +64,13 @@ impl EvalArgs {
         )
         .await;
         stop(local).await?;
-        super::report::eval(&report?);
+        let report = report?;
+        super::report::eval(&report);
+        if let Some(path) = &self.json {
+            let text = serde_json::to_string_pretty(&report)?;
+            std::fs::write(path, text + "\n")
+                .with_context(|| format!("writing the evaluation report to {}", path.display()))?;
+        }
         Ok(())
     }
 }
