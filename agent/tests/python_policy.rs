@@ -3,10 +3,10 @@
 //! actions for fixed observations, and `agent/tests/python_policy.py` loads the same
 //! checkpoint in PyTorch and compares its actions (within 1e-5), then evaluates it
 //! through RemoteEnv with `agent eval`'s seeds and instances, which must give the
-//! episode returns `agent eval` (the real binary) writes to its `--json` report. On DST (categorical) and pendulum (Gaussian,
-//! tanh mean, Box bounds [-2, 2]); and A.3's mocap torso (encoder and latent) on an
-//! untrained learner's checkpoint, actions only; and an ε-conditioned pendulum policy
-//! at a preference off its training grid.
+//! episode returns `agent eval` (the real binary) writes to its `--json` report. On
+//! DST (categorical) and pendulum (Gaussian, tanh mean, Box bounds [-2, 2]); and A.3's
+//! mocap torso (encoder and latent) on an untrained learner's checkpoint, actions only;
+//! and an ε-conditioned pendulum policy at a preference off its training grid.
 //!
 //! No learning bar: both sides must agree on whatever weights a short run ends with.
 //! The tolerances (1e-5 on actions, 1e-6 relative on returns) are float noise, and
@@ -184,7 +184,6 @@ async fn a_state_independent_std_policy_in_pytorch_acts_and_returns_as_the_agent
     agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy", None).await;
 }
 
-/// `agent act` (the real binary) on `obs`, writing `actions`, at `epsilon` if given.
 /// `agent eval` (the real binary) of `run` through `address`, its `--json` report.
 fn agent_eval(
     run: &Path,
@@ -210,6 +209,7 @@ fn agent_eval(
     serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap()
 }
 
+/// `agent act` (the real binary) on `obs`, writing `actions`, at `epsilon` if given.
 fn agent_act(run: &Path, obs: &Path, actions: &Path, epsilon: Option<&str>) {
     let act = Command::new(env!("CARGO_BIN_EXE_agent"))
         .args(["act", "--checkpoint"])
