@@ -73,13 +73,7 @@ job() {
   fi
 }
 failed=0
-reap() {
-  local live=() p
-  for p in "${pids[@]}"; do
-    if kill -0 "$p" 2>/dev/null; then live+=("$p"); else wait "$p" || failed=1; fi
-  done
-  pids=("${live[@]}")
-}
+source scripts/lib/jobs.sh # reap
 echo "==> $config ${sets[*]:-}: seeds $seeds, $steps env steps, evaluation every $every, final policy on $final episodes, $jobs at once"
 for seed in ${seeds//,/ }; do
   while reap; [[ ${#pids[@]} -ge $jobs ]]; do sleep 2; done

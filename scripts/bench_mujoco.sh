@@ -121,13 +121,7 @@ job() {
 # The runs, at most $jobs at once (the server is a job of this shell too, so the runs'
 # pids are tracked here); each task's seed runs on both sides before the next seed.
 failed=0
-reap() {
-  local live=() p
-  for p in "${pids[@]}"; do
-    if kill -0 "$p" 2>/dev/null; then live+=("$p"); else wait "$p" || failed=1; fi
-  done
-  pids=("${live[@]}")
-}
+source scripts/lib/jobs.sh # reap
 echo "==> session $session: tasks $tasks, seeds $seeds, sides $sides, $jobs at once; results $results"
 for task in ${tasks//,/ }; do
   for seed in ${seeds//,/ }; do

@@ -25,7 +25,7 @@ use agent::env::server_process::{LocalServer, ServerOptions};
 use agent::runtime::checkpoint::run::{RunProgress, write_run_checkpoint};
 use agent::runtime::run_config::TrainConfig;
 use agent::runtime::train::{TrainOptions, train};
-use cli::python_json;
+use cli::{python_json, succeeds};
 use tch::Tensor;
 
 /// `n` observations of `dim` values spread over [-scale, scale] (no two rows alike), so
@@ -192,39 +192,29 @@ fn agent_eval(
     epsilon: Option<&str>,
     json: &Path,
 ) -> serde_json::Value {
-    let eval = Command::new(env!("CARGO_BIN_EXE_agent"))
-        .args(["eval", "--checkpoint"])
-        .arg(run)
-        .args(["--server", address, "--episodes", &episodes.to_string()])
-        .args(epsilon.map_or(vec![], |e| vec!["--epsilon", e]))
-        .arg("--json")
-        .arg(json)
-        .output()
-        .unwrap();
-    assert!(
-        eval.status.success(),
-        "{}",
-        String::from_utf8_lossy(&eval.stderr)
+    succeeds(
+        Command::new(env!("CARGO_BIN_EXE_agent"))
+            .args(["eval", "--checkpoint"])
+            .arg(run)
+            .args(["--server", address, "--episodes", &episodes.to_string()])
+            .args(epsilon.map_or(vec![], |e| vec!["--epsilon", e]))
+            .arg("--json")
+            .arg(json),
     );
     serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap()
 }
 
 /// `agent act` (the real binary) on `obs`, writing `actions`, at `epsilon` if given.
 fn agent_act(run: &Path, obs: &Path, actions: &Path, epsilon: Option<&str>) {
-    let act = Command::new(env!("CARGO_BIN_EXE_agent"))
-        .args(["act", "--checkpoint"])
-        .arg(run)
-        .arg("--observations")
-        .arg(obs)
-        .arg("--out")
-        .arg(actions)
-        .args(epsilon.map_or(vec![], |e| vec!["--epsilon", e]))
-        .output()
-        .unwrap();
-    assert!(
-        act.status.success(),
-        "{}",
-        String::from_utf8_lossy(&act.stderr)
+    succeeds(
+        Command::new(env!("CARGO_BIN_EXE_agent"))
+            .args(["act", "--checkpoint"])
+            .arg(run)
+            .arg("--observations")
+            .arg(obs)
+            .arg("--out")
+            .arg(actions)
+            .args(epsilon.map_or(vec![], |e| vec!["--epsilon", e])),
     );
 }
 

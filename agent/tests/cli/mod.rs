@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, Output, Stdio};
 
 use agent::env::server_process::default_python;
 
@@ -102,17 +102,20 @@ pub fn python_json<S: AsRef<std::ffi::OsStr>>(script: &str, args: &[S]) -> serde
     let script = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests")
         .join(script);
-    let out = Command::new(default_python())
-        .arg(script)
-        .args(args)
-        .output()
-        .unwrap();
+    let out = succeeds(Command::new(default_python()).arg(script).args(args));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// Runs `command` to its end and returns its output; its stderr in the message when it
+/// fails.
+pub fn succeeds(command: &mut Command) -> Output {
+    let out = command.output().unwrap();
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    serde_json::from_slice(&out.stdout).unwrap()
+    out
 }
 
 /// The run's scalars as TensorBoard reads them (agent/tests/read_tensorboard.py).
