@@ -54,7 +54,7 @@ trap 'for p in "${pids[@]}"; do kill -- -"$p" 2>/dev/null || true; done; kill ${
 source scripts/lib/env_server.sh
 start_env_server "$out/server.log"
 
-# One seed: train, then the final policy's E-episode evaluation (eval.json beside the run).
+# One seed: train, then the final policy's E-episode evaluation (eval_final.json in the run).
 run() {
   local seed=$1 runs=$out/runs/seed-$1 dir
   "$agent" train --config "$config" --server "$address" --set "seed=$seed" \
