@@ -6,7 +6,8 @@
 //! episode returns `agent eval` (the real binary) writes to its `--json` report. On
 //! DST (categorical) and pendulum (Gaussian, tanh mean, Box bounds [-2, 2]); and A.3's
 //! mocap torso (encoder and latent) on an untrained learner's checkpoint, actions only;
-//! and an ε-conditioned pendulum policy at a preference off its training grid.
+//! and an ε-conditioned pendulum policy at a preference off its training grid, its
+//! features carried to every layer (`network.policy_preference = "every_layer"`).
 //!
 //! No learning bar: both sides must agree on whatever weights a short run ends with.
 //! One tolerance, `FLOAT_NOISE` (1e-5), bounds the actions' difference and each
@@ -168,7 +169,10 @@ fn short_pendulum(file: &str, dir: &Path, more: &[&str]) -> TrainConfig {
 async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
-    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path(), &[]);
+    // Its features carried to every layer: the preset's input-only torso is the plain
+    // pendulum test's, on an observation with the features appended as here.
+    let every_layer = r#"learner.network.policy_preference="every_layer""#;
+    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path(), &[every_layer]);
     // The env's (cos θ, sin θ, θ') only: both sides append the feature of ε_action_norm
     // 0.02, between grid points, and a Gaussian mean moves with any change of its input,
     // so a feature computed differently shows in the actions.

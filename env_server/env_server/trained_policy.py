@@ -14,7 +14,9 @@ latest checkpoint (`checkpoints/latest.json`). Needs torch and safetensors.
 The networks are transcribed from agent/src/core/nets (mlp.rs, policy.rs, torso.rs):
 - torso: Linear -> LayerNorm (eps 1e-5) -> tanh, then Linear -> ELU per further size of
   `network.policy_layers` (parameters `torso.linear_0`, `torso.layer_norm`,
-  `torso.linear_<i>`);
+  `torso.linear_<i>`); with `network.policy_preference = "every_layer"` the
+  observation's last columns, its `preference` leaf, are appended again to the input of
+  every `torso.linear_<i>` after the first and to the torso's output;
 - mocap torso (A.3): `encoder` (such an MLP of `encoder_layers`) on the observation,
   `latent` Linear to the latent's mean and log std, and `torso` on [latent, the
   proprioceptive leaves];
@@ -66,22 +68,29 @@ PREFIX = "policy/policy."  # the checkpoint's "policy/" and the VarStore's root 
 
 
 class Torso(nn.Module):
-    """Linear -> LayerNorm -> tanh, then Linear -> ELU per further hidden size."""
+    """Linear -> LayerNorm -> tanh, then Linear -> ELU per further hidden size; the last
+    `carry` input columns (preference features) appended again to every later layer's
+    input and to the output."""
 
-    def __init__(self, obs_dim: int, layers: list[int]) -> None:
+    def __init__(self, obs_dim: int, layers: list[int], carry: int = 0) -> None:
         super().__init__()
+        self.carry = carry
+        self.output_dim = layers[-1] + carry
         self.linear_0 = nn.Linear(obs_dim, layers[0])
         self.layer_norm = nn.LayerNorm(layers[0], eps=1e-5)
         self.hidden = [f"linear_{i}" for i in range(1, len(layers))]
         for name, (inputs, outputs) in zip(self.hidden, zip(layers, layers[1:])):
-            self.add_module(name, nn.Linear(inputs, outputs))
+            self.add_module(name, nn.Linear(inputs + carry, outputs))
+
+    def _carried(self, h: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        return torch.cat([h, obs[..., obs.shape[-1] - self.carry :]], dim=-1) if self.carry else h
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        """[B, obs_dim] -> [B, layers[-1]]."""
+        """[B, obs_dim] -> [B, output_dim]."""
         h = torch.tanh(self.layer_norm(self.linear_0(obs)))
         for name in self.hidden:
-            h = nn.functional.elu(getattr(self, name)(h))
-        return h
+            h = nn.functional.elu(getattr(self, name)(self._carried(h, obs)))
+        return self._carried(h, obs)
 
 
 class _Policy(nn.Module):
@@ -107,7 +116,7 @@ class _Policy(nn.Module):
         layers = network["policy_layers"]
         self.latent_dim = 0
         if arch["kind"] == "mlp":
-            self.torso = Torso(dims["obs_dim"], layers)
+            self.torso = Torso(dims["obs_dim"], layers, _carried_features(network, dims))
             return
         encoder_layers = arch.get("encoder_layers", [1024, 1024])  # the agent's defaults
         self.latent_dim = arch.get("latent_dim", 60)
@@ -141,7 +150,6 @@ class GaussianPolicy(_Policy):
 
     def __init__(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
         super().__init__()
-        layers = network["policy_layers"]
         self.action_dim = dims["action"]["continuous"]["dim"]
         self._build_torso(network, dims)
         std = network.get("policy_std", "state_dependent")
@@ -150,7 +158,7 @@ class GaussianPolicy(_Policy):
                 f"config.network.policy_std: expected 'state_dependent' or 'state_independent', got {std!r}"
             )
         self.std_raw = nn.Parameter(torch.zeros(self.action_dim)) if std == "state_independent" else None
-        self.head = nn.Linear(layers[-1], self.action_dim * (1 if self.std_raw is not None else 2))
+        self.head = nn.Linear(self.torso.output_dim, self.action_dim * (1 if self.std_raw is not None else 2))
         self.tanh_mean = bool(network["tanh_on_action_mean"])
         self.min_std = math.sqrt(network["min_variance"])
         low, high = _bounds(dims.get("action_bounds"), self.action_dim)
@@ -184,9 +192,8 @@ class CategoricalPolicy(_Policy):
 
     def __init__(self, network: dict[str, Any], dims: dict[str, Any]) -> None:
         super().__init__()
-        layers = network["policy_layers"]
         self._build_torso(network, dims)
-        self.head = nn.Linear(layers[-1], dims["action"]["discrete"]["n"])
+        self.head = nn.Linear(self.torso.output_dim, dims["action"]["discrete"]["n"])
 
     def forward(self, obs: torch.Tensor, latent_noise: torch.Tensor | None = None) -> torch.Tensor:
         return self.head(self.features(obs, latent_noise))
@@ -203,6 +210,17 @@ class CategoricalPolicy(_Policy):
         else:
             action = torch.distributions.Categorical(logits=logits).sample()
         return action if batched else action[0]
+
+
+def _carried_features(network: dict[str, Any], dims: dict[str, Any]) -> int:
+    """How many preference features every layer of the torso reads again: the
+    observation's `preference` leaf with `network.policy_preference = "every_layer"`."""
+    where = network.get("policy_preference", "input")
+    if where not in ("input", "every_layer"):
+        raise ValueError(f"config.network.policy_preference: expected 'input' or 'every_layer', got {where!r}")
+    if where == "input":
+        return 0
+    return sum(leaf["dim"] for leaf in dims.get("obs_leaves", []) if leaf["name"] == "preference")
 
 
 def checkpoint_dir(path: str | pathlib.Path) -> pathlib.Path:

@@ -67,14 +67,20 @@ def _write(directory: pathlib.Path, params: dict[str, np.ndarray], network: dict
     return ckpt
 
 
+def _layer_norm(h: np.ndarray, p: dict[str, np.ndarray]) -> np.ndarray:
+    h = (h - h.mean(-1, keepdims=True)) / np.sqrt(h.var(-1, keepdims=True) + 1e-5)
+    return h * p["torso.layer_norm.weight"] + p["torso.layer_norm.bias"]
+
+
+def _elu(h: np.ndarray) -> np.ndarray:
+    return np.where(h > 0, h, np.expm1(h))
+
+
 def _torso(p: dict[str, np.ndarray], x: np.ndarray, depth: int) -> np.ndarray:
     """mlp.rs LayerNormMlp in float64 numpy."""
-    h = x @ p["torso.linear_0.weight"].T + p["torso.linear_0.bias"]
-    h = (h - h.mean(-1, keepdims=True)) / np.sqrt(h.var(-1, keepdims=True) + 1e-5)
-    h = np.tanh(h * p["torso.layer_norm.weight"] + p["torso.layer_norm.bias"])
+    h = np.tanh(_layer_norm(x @ p["torso.linear_0.weight"].T + p["torso.linear_0.bias"], p))
     for i in range(1, depth):
-        h = h @ p[f"torso.linear_{i}.weight"].T + p[f"torso.linear_{i}.bias"]
-        h = np.where(h > 0, h, np.expm1(h))
+        h = _elu(h @ p[f"torso.linear_{i}.weight"].T + p[f"torso.linear_{i}.bias"])
     return h
 
 
@@ -141,6 +147,31 @@ def test_a_state_independent_std_is_the_std_raw_parameter(tmp_path: pathlib.Path
     params["head.weight"] = rng.uniform(-1, 1, (2 * d, layers[-1])).astype(np.float32)
     with pytest.raises(ValueError, match=r"head.weight: expected shape \[2, 4\], got \[4, 4\]"):
         load_policy(_write(tmp_path / "other", params, network, dims))
+
+
+def test_every_layer_preference_features_enter_each_later_layer_and_the_head() -> None:
+    """network.policy_preference = "every_layer": the observation's `preference` leaf
+    (its last columns) is appended again to linear_1's input and to the head's."""
+    rng = np.random.default_rng(3)
+    layers, env_dim, f, d = [5, 4], 3, 2, 2
+    obs_dim = env_dim + f
+    params = _params(rng, obs_dim, layers, 2 * d)
+    params["torso.linear_1.weight"] = rng.uniform(-1, 1, (4, 5 + f)).astype(np.float32)
+    params["head.weight"] = rng.uniform(-1, 1, (2 * d, 4 + f)).astype(np.float32)
+    leaves = [{"name": "", "dim": env_dim}, {"name": "preference", "dim": f}]
+    dims = {"obs_dim": obs_dim, "action": {"continuous": {"dim": d}}, "reward_names": ["a", "b"], "obs_leaves": leaves}
+    policy = GaussianPolicy(_network(layers) | {"policy_preference": "every_layer"}, dims)
+    policy.load_state_dict({k: torch.as_tensor(v) for k, v in params.items()})
+    obs = rng.normal(0, 3, (6, obs_dim))
+    h = np.tanh(_layer_norm(obs @ params["torso.linear_0.weight"].T + params["torso.linear_0.bias"], params))
+    h = np.concatenate([h, obs[:, env_dim:]], axis=1) @ params["torso.linear_1.weight"].T
+    h = np.concatenate([_elu(h + params["torso.linear_1.bias"]), obs[:, env_dim:]], axis=1)
+    out = h @ params["head.weight"].T + params["head.bias"]
+    got_mean, got_std = policy(torch.as_tensor(obs, dtype=torch.float32))
+    np.testing.assert_allclose(got_mean.detach().numpy(), np.tanh(out[:, :d]), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(got_std.detach().numpy(), np.log1p(np.exp(out[:, d:])) + 1e-2, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match=r"policy_preference: expected 'input' or 'every_layer', got 'everywhere'"):
+        GaussianPolicy(_network(layers) | {"policy_preference": "everywhere"}, dims)
 
 
 def test_categorical_policy_hand_derived(tmp_path: pathlib.Path) -> None:

@@ -17,7 +17,7 @@ pub use conditioning::{ConditioningConfig, GridTrustRegion, MAX_GRID_POINTS};
 pub use error::ConfigError;
 use error::{check, finite_pos};
 pub use mpo::MpoConfig;
-pub use network::{Architecture, NetworkConfig, PolicyStd};
+pub use network::{Architecture, NetworkConfig, PolicyPreference, PolicyStd};
 pub use shared::{KlConstraint, MinAlpha, SharedSettings, TemperatureParameterization};
 pub use vmpo::{TopK, VmpoConfig};
 
@@ -229,6 +229,13 @@ impl LearnerConfig {
                 }
             }
         }
+        check(
+            self.network.policy_preference == PolicyPreference::Input
+                || self.conditioning.is_some(),
+            "network.policy_preference",
+            "\"input\" without [learner.conditioning] (there are no preference features)",
+            "every_layer",
+        )?;
         if let Some(c) = &self.conditioning {
             c.validate_for(self)?;
         }
@@ -298,6 +305,13 @@ mod tests {
         assert_eq!(
             c.validate().unwrap_err().to_string(),
             "network.min_variance must be > 0, got -0.001"
+        );
+        c.network.min_variance = 1e-12;
+        c.network.policy_preference = PolicyPreference::EveryLayer;
+        assert_eq!(
+            c.validate().unwrap_err().to_string(),
+            "network.policy_preference must be \"input\" without [learner.conditioning] \
+             (there are no preference features), got \"every_layer\""
         );
     }
 

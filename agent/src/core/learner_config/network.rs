@@ -62,6 +62,21 @@ pub enum PolicyStd {
     StateIndependent,
 }
 
+/// Where an ε-conditioned policy reads its preference features (not in the paper,
+/// whose policies are not conditioned; docs/algorithms/conditioned.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PolicyPreference {
+    /// Appended to the observation, so they enter through the first layer only (as
+    /// CAPQL's and most conditioned networks' inputs).
+    #[default]
+    Input,
+    /// Also appended to the input of every later policy layer and of its head, so that
+    /// each layer can tell the preferences apart directly instead of through the first
+    /// layer's LayerNorm, which normalises them together with the observation.
+    EveryLayer,
+}
+
 /// Sizes and options of the policy and critic networks.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -88,6 +103,11 @@ pub struct NetworkConfig {
     /// The Gaussian policy's standard deviation: per state from the network (the
     /// paper's) or one learned value per action dimension.
     pub policy_std: PolicyStd,
+    /// Where an ε-conditioned policy reads its preference features: `input` (with the
+    /// observation) or `every_layer` (also beside every later layer's input and the
+    /// head's). Needs `[learner.conditioning]` and the plain MLP torso. Critics read
+    /// them with the observation either way.
+    pub policy_preference: PolicyPreference,
 }
 
 impl Default for NetworkConfig {
@@ -101,6 +121,7 @@ impl Default for NetworkConfig {
             tanh_on_critic_action: true,
             architecture: Architecture::Mlp,
             policy_std: PolicyStd::StateDependent,
+            policy_preference: PolicyPreference::Input,
         }
     }
 }

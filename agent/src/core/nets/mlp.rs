@@ -206,12 +206,38 @@ impl Norm {
 }
 
 /// Linear -> LayerNorm -> tanh, then Linear -> ELU for each further hidden size.
+///
+/// A network that *carries* its last `carry` input columns (an ε-conditioned policy's
+/// preference features, `NetworkConfig::policy_preference`) appends them again to the
+/// input of every further layer and to its output, so that they reach each layer
+/// directly rather than only through the first layer's LayerNorm, where the
+/// observation's other columns share one normalisation with them.
 #[derive(Debug)]
 pub struct LayerNormMlp {
     first: Dense,
     norm: Norm,
     hidden: Vec<Dense>,
+    /// The carried input columns: `input - carry..input` (`carry` 0: none).
+    carried: CarriedColumns,
     output_dim: i64,
+}
+
+/// Which trailing input columns a `LayerNormMlp` appends to every later layer's input.
+#[derive(Debug, Clone, Copy)]
+struct CarriedColumns {
+    start: i64,
+    len: i64,
+}
+
+impl CarriedColumns {
+    /// `h` with the carried columns of the network's input `x` appended (`h` itself
+    /// when nothing is carried). # Shapes `h [.., H]`, `x [.., input] -> [.., H + len]`.
+    fn append(self, h: Tensor, x: &Tensor) -> Tensor {
+        if self.len == 0 {
+            return h;
+        }
+        Tensor::cat(&[h, x.narrow(-1, self.start, self.len)], -1)
+    }
 }
 
 impl LayerNormMlp {
@@ -222,6 +248,22 @@ impl LayerNormMlp {
 
     /// As `new`, for `members` networks.
     pub fn with_members(p: &nn::Path, input: i64, layers: &[i64], members: Members) -> Self {
+        Self::carrying(p, input, layers, 0, members)
+    }
+
+    /// As `with_members`, appending the last `carry` input columns to the input of
+    /// every layer after the first and to the output (`carry` <= `input`).
+    pub fn carrying(
+        p: &nn::Path,
+        input: i64,
+        layers: &[i64],
+        carry: i64,
+        members: Members,
+    ) -> Self {
+        assert!(
+            (0..=input).contains(&carry),
+            "carry {carry} of {input} input columns"
+        );
         let first = Dense::with_members(&(p / "linear_0"), input, layers[0], input, true, members);
         let norm = Norm::with_members(&(p / "layer_norm"), layers[0], members);
         let hidden = layers
@@ -229,14 +271,19 @@ impl LayerNormMlp {
             .enumerate()
             .map(|(i, w)| {
                 let path = p / format!("linear_{}", i + 1);
-                Dense::with_members(&path, w[0], w[1], w[0], true, members)
+                let fan_in = w[0] + carry;
+                Dense::with_members(&path, fan_in, w[1], fan_in, true, members)
             })
             .collect();
         Self {
             first,
             norm,
             hidden,
-            output_dim: *layers.last().unwrap_or(&input),
+            carried: CarriedColumns {
+                start: input - carry,
+                len: carry,
+            },
+            output_dim: layers.last().unwrap_or(&input) + carry,
         }
     }
 
@@ -250,38 +297,39 @@ impl LayerNormMlp {
                 .iter()
                 .map(|d| d.narrow_members(start, len))
                 .collect(),
+            carried: self.carried,
             output_dim: self.output_dim,
         }
     }
 
-    /// Width of the last hidden layer.
+    /// Width of the output: the last hidden layer's, and the carried columns.
     pub fn output_dim(&self) -> i64 {
         self.output_dim
     }
 
     /// # Shapes
-    /// `[.., input] -> [.., layers.last()]` (one member).
+    /// `[.., input] -> [.., output_dim]` (one member).
     pub fn forward(&self, x: &Tensor) -> Tensor {
         let mut h = self.norm.forward_tanh(&self.first.forward(x));
         for layer in &self.hidden {
-            h = layer.forward(&h);
+            h = layer.forward(&self.carried.append(h, x));
             // In place: Linear's backward does not need its output.
             elu_(&mut h);
         }
-        h
+        self.carried.append(h, x)
     }
 
     /// # Shapes
-    /// `[P, R, input] -> [P, R, layers.last()]`.
+    /// `[P, R, input] -> [P, R, output_dim]`.
     pub fn forward_members(&self, x: &Tensor) -> Tensor {
         let mut h = self
             .norm
             .forward_tanh_members(&self.first.forward_members(x));
         for layer in &self.hidden {
-            h = layer.forward_members(&h);
+            h = layer.forward_members(&self.carried.append(h, x));
             elu_(&mut h);
         }
-        h
+        self.carried.append(h, x)
     }
 }
 
@@ -393,16 +441,60 @@ mod tests {
         }
     }
 
+    /// A LayerNormMlp that carries its last two input columns to every later layer.
+    struct Carrying(LayerNormMlp);
+
+    impl Net for Carrying {
+        fn build(p: &nn::Path, members: Members) -> Self {
+            Carrying(LayerNormMlp::carrying(p, 5, &[8, 6], 2, members))
+        }
+        fn forward(&self, x: &Tensor) -> Tensor {
+            self.0.forward(x)
+        }
+        fn forward_members(&self, x: &Tensor) -> Tensor {
+            self.0.forward_members(x)
+        }
+    }
+
     #[test]
     fn a_population_of_one_is_the_single_network_bit_for_bit() {
         one_member_is_bit_for_bit::<LayerNormMlp>();
+        one_member_is_bit_for_bit::<Carrying>();
         one_member_is_bit_for_bit::<HeadStack>();
     }
 
     #[test]
     fn each_stacked_member_is_its_own_single_network() {
         stacked_members_are_their_single_networks::<LayerNormMlp>();
+        stacked_members_are_their_single_networks::<Carrying>();
         stacked_members_are_their_single_networks::<HeadStack>();
+    }
+
+    /// With the first layer blind to the carried columns, they still move the hidden
+    /// output (through linear_1) and reach the output as they are; without carrying,
+    /// the same blind first layer makes the output ignore them.
+    #[test]
+    fn carried_columns_reach_every_later_layer() {
+        let x = randn(&[4, 5]);
+        let moved = x.copy();
+        let _ = moved.narrow(1, 3, 2).g_add_scalar_(1.5);
+        for carry in [0, 2] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let mlp = LayerNormMlp::carrying(&vs.root(), 5, &[8, 6], carry, Members::ONE);
+            tch::no_grad(|| {
+                let _ = mlp.first.weight.narrow(1, 3, 2).zero_();
+            });
+            assert_eq!(mlp.output_dim(), 6 + carry);
+            assert_eq!(mlp.hidden[0].weight.size(), vec![6, 8 + carry]);
+            let (a, b) = (mlp.forward(&x), mlp.forward(&moved));
+            let hidden_moved = !a
+                .narrow(1, 0, 6)
+                .allclose(&b.narrow(1, 0, 6), 1e-6, 1e-6, false);
+            assert_eq!(hidden_moved, carry > 0, "carry {carry}");
+            if carry > 0 {
+                assert!(a.narrow(1, 6, 2).equal(&x.narrow(1, 3, 2)));
+            }
+        }
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! Policy torsos: the plain LayerNorm MLP (Table 2) and the humanoid mocap encoder of
-//! appendix A.3.
+//! appendix A.3. An ε-conditioned plain torso may carry its preference features to
+//! every layer (`network.policy_preference`).
 //!
 //! Mocap: an encoder MLP (`encoder_layers`, 1024x2) reads the whole observation
 //! (reference and proprioception), linear layers give the mean and log standard
@@ -14,7 +15,7 @@
 
 use super::LearnerDims;
 use super::mlp::{Dense, LayerNormMlp, Members};
-use crate::core::learner_config::{Architecture, NetworkConfig};
+use crate::core::learner_config::{Architecture, NetworkConfig, PolicyPreference};
 use tch::{Kind, Tensor, nn};
 
 const LOG_STD_MIN: f64 = -5.0;
@@ -70,10 +71,14 @@ impl Torso {
         members: Members,
     ) -> Self {
         match &cfg.architecture {
-            Architecture::Mlp => Torso::Mlp(LayerNormMlp::with_members(
+            Architecture::Mlp => Torso::Mlp(LayerNormMlp::carrying(
                 &(p / "torso"),
                 dims.obs_dim,
                 &cfg.policy_layers,
+                match cfg.policy_preference {
+                    PolicyPreference::Input => 0,
+                    PolicyPreference::EveryLayer => dims.preference_features() as i64,
+                },
                 members,
             )),
             Architecture::Mocap {
