@@ -11,7 +11,7 @@ carries the network config and the dimensions the learner was built for, and
 (the target networks, critics and duals there are ignored). A run directory means its
 latest checkpoint (`checkpoints/latest.json`). Needs torch and safetensors.
 
-The networks are transcribed from agent/src/core/nets (mlp.rs, policy.rs, torso.rs):
+The networks are transcribed from agent/src/core/nets (mlp/mod.rs, policy.rs, torso.rs):
 - torso: Linear -> LayerNorm (eps 1e-5) -> tanh, then Linear -> ELU per further size of
   `network.policy_layers` (parameters `torso.linear_0`, `torso.layer_norm`,
   `torso.linear_<i>`); with `network.policy_preference = "every_layer"` the

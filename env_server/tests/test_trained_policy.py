@@ -77,7 +77,7 @@ def _elu(h: np.ndarray) -> np.ndarray:
 
 
 def _torso(p: dict[str, np.ndarray], x: np.ndarray, depth: int) -> np.ndarray:
-    """mlp.rs LayerNormMlp in float64 numpy."""
+    """mlp/mod.rs LayerNormMlp in float64 numpy."""
     h = np.tanh(_layer_norm(x @ p["torso.linear_0.weight"].T + p["torso.linear_0.bias"], p))
     for i in range(1, depth):
         h = _elu(h @ p[f"torso.linear_{i}.weight"].T + p[f"torso.linear_{i}.bias"])

@@ -9,7 +9,7 @@
 //! C heads (`[C, in, out]` stacked weights) run as one batched matmul per layer, so
 //! all learned objectives are evaluated in one pass.
 //!
-//! Population training (`mlp.rs`): with P members the layers are stacked and the
+//! Population training (`mlp/mod.rs`): with P members the layers are stacked and the
 //! `*_members` passes take and return member-first tensors. Untracked passes over
 //! many rows run a few members at a time on a CPU (`MEMBER_CHUNK_VALUES`), for the
 //! same reason `forward_samples` chunks samples; one member alone runs exactly the

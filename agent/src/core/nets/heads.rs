@@ -1,6 +1,6 @@
 //! C per-objective critic heads run as one batched matmul per layer (appendix A: "a
 //! separate critic is trained for each objective"), with the member axis of
-//! population training in front (see `mlp.rs`).
+//! population training in front (see `mlp/mod.rs`).
 //!
 //! Shape legend: P members, R rows, C heads.
 
