@@ -22,10 +22,11 @@ of those states, prints per learned objective (critic head):
 
 Each `--epsilon` is a preference of an ε-conditioned run (default: its grid's middle
 point); a fixed-ε run takes none. The critic is transcribed from
-agent/src/core/nets/critic.rs (shared first layer `W_obs obs + W_act tanh(a) + b` ->
+agent/src/core/nets/critic/mod.rs (shared first layer `W_obs obs + W_act tanh(a) + b` ->
 LayerNorm -> tanh, further shared layers with ELU, per-objective heads Linear -> ELU ->
-Linear) and reads `critic/critic.*` of params.safetensors; mlp policies with continuous
-actions only.
+Linear; with `critic_preference = "every_layer"` the preference features also enter
+every layer after the first) and reads `critic/critic.*` of params.safetensors; mlp
+policies with continuous actions only.
 """
 
 from __future__ import annotations
@@ -64,17 +65,28 @@ class Critic:
         self.shared = [(get(f"shared.linear_{i}.weight"), get(f"shared.linear_{i}.bias")) for i in range(1, shared)]
         heads = len(network["critic_layers"]) - shared + 1
         self.heads = [(get(f"heads.linear_{i}.weight"), get(f"heads.linear_{i}.bias")) for i in range(heads)]
+        # `critic_preference = "every_layer"`: the last head's input is wider than the
+        # last hidden size by the carried preference features.
+        self.carry = self.heads[-1][0].shape[1] - network["critic_layers"][-1]
 
     def __call__(self, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         a = torch.tanh(actions) if self.tanh_action else actions
         h = obs @ self.obs_w.T + self.obs_b + a @ self.act_w.T
         h = torch.tanh(torch.nn.functional.layer_norm(h, (h.shape[-1],), *self.norm, 1e-5))
+        carried = obs[:, obs.shape[1] - self.carry :]  # [N, F]
+
+        def carry(x: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+            """x [.., R, w] with the carried rows [R, F] appended (x when none)."""
+            return torch.cat([x, rows.expand(*x.shape[:-2], *rows.shape)], -1) if self.carry else x
+
         for w, b in self.shared:
-            h = torch.nn.functional.elu(h @ w.T + b)
+            h = torch.nn.functional.elu(carry(h, carried) @ w.T + b)
+        h = carry(h, carried)
         m, n, width = h.shape
         x = h.reshape(1, m * n, width).expand(self.heads[0][0].shape[0], -1, -1)  # [C, M N, w]
+        rows = carried.expand(m, -1, -1).reshape(m * n, self.carry)
         for i, (w, b) in enumerate(self.heads):
-            x = torch.baddbmm(b, x, w)
+            x = torch.baddbmm(b, carry(x, rows) if i > 0 else x, w)
             if i + 1 < len(self.heads):
                 x = torch.nn.functional.elu(x)
         return x[..., 0].reshape(-1, m, n).permute(1, 2, 0)

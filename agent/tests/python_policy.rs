@@ -7,7 +7,8 @@
 //! DST (categorical) and pendulum (Gaussian, tanh mean, Box bounds [-2, 2]); and A.3's
 //! mocap torso (encoder and latent) on an untrained learner's checkpoint, actions only;
 //! and an ε-conditioned pendulum policy at a preference off its training grid, its
-//! features carried to every layer (`network.policy_preference = "every_layer"`).
+//! features carried to every layer (`network.policy_preference = "every_layer"`, and
+//! `critic_preference` for the critics it trains with).
 //!
 //! No learning bar: both sides must agree on whatever weights a short run ends with.
 //! One tolerance, `FLOAT_NOISE` (1e-5), bounds the actions' difference and each
@@ -15,11 +16,11 @@
 //! 200 steps, so it cannot be asked to agree more closely than they do. Returns had a
 //! bar of 1e-6 relative until the conditioned preset's Polyak targets (2026-11-30)
 //! trained seed 1 to a policy whose action_norm return differed by 3.4e-4 on 78.7
-//! (4.3e-6 relative). Seeds 1-5 (`scripts/learning_seeds.sh "1 2 3 4 5"
-//! python_policy`, 2026-11-30, the conditioned case with its features on every
-//! layer): actions differed by at most 8.9e-7 (DST's by 0; the conditioned policy's by
-//! 3.7e-7), returns by at most 6.9e-4 absolute and 7.7e-7 relative, and every
-//! report's means were its episodes'.
+//! (4.3e-6 relative). Seeds 0-5 (`scripts/learning_seeds.sh "0 1 2 3 4 5"
+//! python_policy`, 2026-11-30, the conditioned case with its features on every layer
+//! of the policy and the critics): actions differed by at most 8.9e-7 (DST's by 0;
+//! the conditioned policy's by 3.0e-7), returns by at most 7.1e-4 absolute and 8.0e-7
+//! relative, and every report's means were its episodes'.
 
 mod cli;
 mod common;
@@ -170,11 +171,16 @@ fn short_pendulum(file: &str, dir: &Path, more: &[&str]) -> TrainConfig {
 async fn an_epsilon_conditioned_policy_in_pytorch_acts_and_returns_as_the_agent() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
     let runs = tempfile::tempdir().unwrap();
-    // Its features carried to every layer: the preset's input-only torso is the plain
-    // pendulum test's, on an observation with the features appended as here. Seeds 0-5
-    // (2026-11-30): actions within 3.7e-7, returns within 1.1e-4 (1.9e-7 relative).
-    let every_layer = r#"learner.network.policy_preference="every_layer""#;
-    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path(), &[every_layer]);
+    // Its features carried to every layer of the policy and of the critics (which
+    // PyTorch does not load, but the run trains and checkpoints): the preset's
+    // input-only torso is the plain pendulum test's, on an observation with the
+    // features appended as here. Seeds 0-5 (2026-11-30): actions within 3.0e-7,
+    // returns within 7.1e-4 (8.0e-7 relative).
+    let every_layer = [
+        r#"learner.network.policy_preference="every_layer""#,
+        r#"learner.network.critic_preference="every_layer""#,
+    ];
+    let cfg = short_pendulum("pendulum-conditioned.toml", runs.path(), &every_layer);
     // The env's (cos θ, sin θ, θ') only: both sides append the feature of ε_action_norm
     // 0.02, between grid points, and a Gaussian mean moves with any change of its input,
     // so a feature computed differently shows in the actions.

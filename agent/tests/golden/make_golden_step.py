@@ -17,7 +17,7 @@ from targets copied after the second.
 
 Choices that are the project's, not the paper's, transcribed here as documented in
 the Rust modules: Gaussian policy head (nets/policy.rs), the critic's shared first
-layer and per-objective heads (nets/critic.rs), padding after an episode's end (no
+layer and per-objective heads (nets/critic/), padding after an episode's end (no
 critic regression there, no policy fit at states never acted from, mompo.rs), the
 action-norm objective on the executed action (objectives/mod.rs), duals as
 softplus(param) + 1e-8 with their own Adam and a floor of -18 on the parameter after

@@ -140,6 +140,7 @@ pub(super) fn build_networks(
                 dims.obs_dim,
                 dims.action,
                 heads,
+                dims.carried_features(net.critic_preference),
                 members,
             )
         };

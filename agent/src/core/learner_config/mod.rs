@@ -17,7 +17,7 @@ pub use conditioning::{ConditioningConfig, GridTrustRegion, MAX_GRID_POINTS};
 pub use error::ConfigError;
 use error::{check, finite_pos};
 pub use mpo::MpoConfig;
-pub use network::{Architecture, NetworkConfig, PolicyPreference, PolicyStd};
+pub use network::{Architecture, NetworkConfig, PolicyStd, PreferenceFeatures};
 pub use shared::{KlConstraint, MinAlpha, SharedSettings, TemperatureParameterization};
 pub use vmpo::{TopK, VmpoConfig};
 
@@ -229,13 +229,17 @@ impl LearnerConfig {
                 }
             }
         }
-        check(
-            self.network.policy_preference == PolicyPreference::Input
-                || self.conditioning.is_some(),
-            "network.policy_preference",
-            "\"input\" without [learner.conditioning] (there are no preference features)",
-            "every_layer",
-        )?;
+        for (field, features) in [
+            ("network.policy_preference", self.network.policy_preference),
+            ("network.critic_preference", self.network.critic_preference),
+        ] {
+            check(
+                features == PreferenceFeatures::Input || self.conditioning.is_some(),
+                field,
+                "\"input\" without [learner.conditioning] (there are no preference features)",
+                "every_layer",
+            )?;
+        }
         if let Some(c) = &self.conditioning {
             c.validate_for(self)?;
         }
@@ -307,10 +311,17 @@ mod tests {
             "network.min_variance must be > 0, got -0.001"
         );
         c.network.min_variance = 1e-12;
-        c.network.policy_preference = PolicyPreference::EveryLayer;
+        c.network.policy_preference = PreferenceFeatures::EveryLayer;
         assert_eq!(
             c.validate().unwrap_err().to_string(),
             "network.policy_preference must be \"input\" without [learner.conditioning] \
+             (there are no preference features), got \"every_layer\""
+        );
+        c.network.policy_preference = PreferenceFeatures::Input;
+        c.network.critic_preference = PreferenceFeatures::EveryLayer;
+        assert_eq!(
+            c.validate().unwrap_err().to_string(),
+            "network.critic_preference must be \"input\" without [learner.conditioning] \
              (there are no preference features), got \"every_layer\""
         );
     }

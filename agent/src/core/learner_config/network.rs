@@ -62,18 +62,19 @@ pub enum PolicyStd {
     StateIndependent,
 }
 
-/// Where an ε-conditioned policy reads its preference features (not in the paper,
-/// whose policies are not conditioned; docs/algorithms/conditioned.md).
+/// Where an ε-conditioned network reads its preference features (not in the paper,
+/// whose networks are not conditioned; docs/algorithms/conditioned.md).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
-pub enum PolicyPreference {
+pub enum PreferenceFeatures {
     /// Appended to the observation, so they enter through the first layer only (as
     /// CAPQL's and most conditioned networks' inputs).
     #[default]
     Input,
-    /// Also appended to the input of every later policy layer and of its head, so that
-    /// each layer can tell the preferences apart directly instead of through the first
-    /// layer's LayerNorm, which normalises them together with the observation.
+    /// Also appended to the input of every later layer and of the heads, so that each
+    /// layer can tell the preferences apart directly instead of through the first
+    /// layer's LayerNorm, which normalises them together with the observation (and,
+    /// in a critic, the action).
     EveryLayer,
 }
 
@@ -105,9 +106,13 @@ pub struct NetworkConfig {
     pub policy_std: PolicyStd,
     /// Where an ε-conditioned policy reads its preference features: `input` (with the
     /// observation) or `every_layer` (also beside every later layer's input and the
-    /// head's). Needs `[learner.conditioning]` and the plain MLP torso. Critics read
-    /// them with the observation either way.
-    pub policy_preference: PolicyPreference,
+    /// head's). Needs `[learner.conditioning]` and the plain MLP torso.
+    pub policy_preference: PreferenceFeatures,
+    /// Where ε-conditioned Q critics read their preference features: `input` (with
+    /// the observation and the action) or `every_layer` (also beside the input of
+    /// every layer after the first, and of every head layer). Needs
+    /// `[learner.conditioning]`.
+    pub critic_preference: PreferenceFeatures,
 }
 
 impl Default for NetworkConfig {
@@ -121,7 +126,8 @@ impl Default for NetworkConfig {
             tanh_on_critic_action: true,
             architecture: Architecture::Mlp,
             policy_std: PolicyStd::StateDependent,
-            policy_preference: PolicyPreference::Input,
+            policy_preference: PreferenceFeatures::Input,
+            critic_preference: PreferenceFeatures::Input,
         }
     }
 }

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use tch::Tensor;
 
 use super::ActionKind;
-use crate::core::learner_config::ConfigError;
+use crate::core::learner_config::{ConfigError, PreferenceFeatures};
 use crate::core::spec::{EnvSpec, Space};
 
 /// One leaf of the flattened observation.
@@ -124,6 +124,15 @@ impl LearnerDims {
             .iter()
             .find(|l| l.name == PREFERENCE_LEAF)
             .map_or(0, |l| l.dim as usize)
+    }
+
+    /// How many trailing observation columns a network whose preference features are
+    /// read `where_` carries to its later layers (0 for `Input`).
+    pub fn carried_features(&self, where_: PreferenceFeatures) -> i64 {
+        match where_ {
+            PreferenceFeatures::Input => 0,
+            PreferenceFeatures::EveryLayer => self.preference_features() as i64,
+        }
     }
 
     /// Reads the dimensions from a spec; a Dict action space is rejected.

@@ -12,6 +12,8 @@ pub mod heads;
 pub mod mlp;
 pub mod policy;
 pub mod snapshot;
+#[cfg(test)]
+mod testing;
 pub mod torso;
 pub mod value;
 

@@ -15,7 +15,7 @@
 
 use super::LearnerDims;
 use super::mlp::{Dense, LayerNormMlp, Members};
-use crate::core::learner_config::{Architecture, NetworkConfig, PolicyPreference};
+use crate::core::learner_config::{Architecture, NetworkConfig};
 use tch::{Kind, Tensor, nn};
 
 const LOG_STD_MIN: f64 = -5.0;
@@ -75,10 +75,7 @@ impl Torso {
                 &(p / "torso"),
                 dims.obs_dim,
                 &cfg.policy_layers,
-                match cfg.policy_preference {
-                    PolicyPreference::Input => 0,
-                    PolicyPreference::EveryLayer => dims.preference_features() as i64,
-                },
+                dims.carried_features(cfg.policy_preference),
                 members,
             )),
             Architecture::Mocap {

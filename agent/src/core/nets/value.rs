@@ -42,21 +42,22 @@ impl ValueNet {
         let torso =
             LayerNormMlp::with_members(&(p / "shared"), obs_dim, &layers[..shared], members);
         let heads =
-            HeadStack::with_members(&(p / "heads"), num_heads, &layers[shared - 1..], members);
+            HeadStack::with_members(&(p / "heads"), num_heads, &layers[shared - 1..], 0, members);
         Self { torso, heads }
     }
 
     /// # Shapes
     /// `obs [N, O] -> [N, C]`.
     pub fn forward(&self, obs: &Tensor) -> Tensor {
-        self.heads.forward(&self.torso.forward(obs))
+        self.heads.forward(&self.torso.forward(obs), None)
     }
 
     /// Every member's values on its own states.
     /// # Shapes
     /// `obs [P, N, O] -> [P, N, C]`.
     pub fn forward_members(&self, obs: &Tensor) -> Tensor {
-        self.heads.forward_members(&self.torso.forward_members(obs))
+        self.heads
+            .forward_members(&self.torso.forward_members(obs), None)
     }
 }
 

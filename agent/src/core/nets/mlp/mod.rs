@@ -236,8 +236,23 @@ impl CarriedColumns {
         if self.len == 0 {
             return h;
         }
-        Tensor::cat(&[h, x.narrow(-1, self.start, self.len)], -1)
+        append_carried(h, Some(&x.narrow(-1, self.start, self.len)))
     }
+}
+
+/// `h` with `carried` appended along the last axis, broadcast over `h`'s leading axes
+/// (`h` itself when nothing is carried).
+/// # Shapes
+/// `h [.., R, H]`, `carried [.., R, F]` (leading axes of size 1 or `h`'s) `-> [.., R, H + F]`.
+pub(crate) fn append_carried(h: Tensor, carried: Option<&Tensor>) -> Tensor {
+    let Some(carried) = carried else {
+        return h;
+    };
+    let mut shape = h.size();
+    if let Some(last) = shape.last_mut() {
+        *last = carried.size()[carried.dim() - 1];
+    }
+    Tensor::cat(&[h, carried.expand(&shape, false)], -1)
 }
 
 impl LayerNormMlp {

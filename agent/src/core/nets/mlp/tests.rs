@@ -44,13 +44,13 @@ impl Net for LayerNormMlp {
 
 impl Net for HeadStack {
     fn build(p: &nn::Path, members: Members) -> Self {
-        HeadStack::with_members(p, 2, &[5, 6], members)
+        HeadStack::with_members(p, 2, &[5, 6], 0, members)
     }
     fn forward(&self, x: &Tensor) -> Tensor {
-        HeadStack::forward(self, x)
+        HeadStack::forward(self, x, None)
     }
     fn forward_members(&self, x: &Tensor) -> Tensor {
-        HeadStack::forward_members(self, x)
+        HeadStack::forward_members(self, x, None)
     }
 }
 

@@ -15,13 +15,19 @@
 //! same reason `forward_samples` chunks samples; one member alone runs exactly the
 //! single-network pass.
 //!
+//! An ε-conditioned critic may carry its preference features (the observation's last
+//! F columns) to the input of every layer after the first, heads included
+//! (`network.critic_preference`), so that Q at a preference need not recover the
+//! preference from the first layer's LayerNorm, which normalises it together with
+//! the observation and the action.
+//!
 //! Shape legend: P members, N states, M actions per state, D action dims, A discrete
-//! actions, C heads (learned objectives).
+//! actions, C heads (learned objectives), F carried features.
 
 use super::ActionKind;
 use super::activation::elu_;
 use super::heads::HeadStack;
-use super::mlp::{Dense, Members, Norm};
+use super::mlp::{Dense, Members, Norm, append_carried};
 use crate::core::learner_config::NetworkConfig;
 use tch::{Device, Kind, Tensor, nn};
 
@@ -56,6 +62,8 @@ pub struct MultiCritic {
     members: Members,
     /// The widest layer (sizes the member chunks of untracked passes).
     widest: i64,
+    /// Trailing observation columns carried to every layer after the first.
+    carry: i64,
 }
 
 impl MultiCritic {
@@ -68,18 +76,24 @@ impl MultiCritic {
         action: ActionKind,
         num_heads: i64,
     ) -> Self {
-        Self::with_members(p, cfg, obs_dim, action, num_heads, Members::ONE)
+        Self::with_members(p, cfg, obs_dim, action, num_heads, 0, Members::ONE)
     }
 
-    /// As `new`, for `members` networks.
+    /// As `new`, for `members` networks that carry the last `carry` observation
+    /// columns to every layer after the first.
     pub fn with_members(
         p: &nn::Path,
         cfg: &NetworkConfig,
         obs_dim: i64,
         action: ActionKind,
         num_heads: i64,
+        carry: i64,
         members: Members,
     ) -> Self {
+        assert!(
+            (0..=obs_dim).contains(&carry),
+            "carry {carry} of {obs_dim} observation columns"
+        );
         let layers = &cfg.critic_layers;
         let act_dim = action.critic_input_dim();
         let fan_in = obs_dim + act_dim;
@@ -96,11 +110,12 @@ impl MultiCritic {
             .enumerate()
             .map(|(i, w)| {
                 let path = &shared / format!("linear_{}", i + 1);
-                dense(&path, w[0], w[1], w[0], true)
+                dense(&path, w[0] + carry, w[1], w[0] + carry, true)
             })
             .collect();
-        let heads =
-            HeadStack::with_members(&(p / "heads"), num_heads, &layers[n_shared - 1..], members);
+        let mut sizes = layers[n_shared - 1..].to_vec();
+        sizes[0] += carry;
+        let heads = HeadStack::with_members(&(p / "heads"), num_heads, &sizes, carry, members);
         Self {
             obs_layer,
             action_layer,
@@ -112,6 +127,7 @@ impl MultiCritic {
             num_heads,
             members,
             widest: *layers.iter().max().unwrap_or(&1),
+            carry,
         }
     }
 
@@ -132,6 +148,7 @@ impl MultiCritic {
             num_heads: self.num_heads,
             members: self.members.narrowed(len),
             widest: self.widest,
+            carry: self.carry,
         }
     }
 
@@ -148,14 +165,31 @@ impl MultiCritic {
         }
     }
 
-    /// Further shared layers, then the heads, on first-layer features. `[P, h1] -> [P, C]`.
-    fn heads_forward(&self, h: &Tensor) -> Tensor {
+    /// The carried columns of states `obs [.., N, obs_dim]`, repeated for the
+    /// `repeats` actions evaluated per state: `[.., repeats N, F]` (the rows of the
+    /// first layer's flattened `[.., repeats, N, h1]`); none when nothing is carried.
+    fn carried_rows(&self, obs: &Tensor, repeats: i64) -> Option<Tensor> {
+        if self.carry == 0 {
+            return None;
+        }
+        let carried = obs.narrow(-1, obs.size()[obs.dim() - 1] - self.carry, self.carry);
+        let mut rows = carried.size();
+        let axis = rows.len() - 2;
+        let mut shape = rows.clone();
+        shape.insert(axis, repeats);
+        rows[axis] *= repeats;
+        Some(carried.unsqueeze(-3).expand(&shape, false).reshape(&rows))
+    }
+
+    /// Further shared layers, then the heads, on first-layer features.
+    /// `h [R, h1]`, `carried [R, F] -> [R, C]`.
+    fn heads_forward(&self, h: &Tensor, carried: Option<&Tensor>) -> Tensor {
         let mut x = h.shallow_clone();
         for layer in &self.shared_hidden {
-            x = layer.forward(&x);
+            x = layer.forward(&append_carried(x, carried));
             elu_(&mut x);
         }
-        self.heads.forward(&x)
+        self.heads.forward(&append_carried(x, carried), carried)
     }
 
     /// Shared first layer for actions `[.., N, a]` against states `[N, obs]`.
@@ -189,7 +223,8 @@ impl MultiCritic {
     /// # Shapes
     /// `obs [N, obs_dim]`, `actions [N, D] f32 | [N] i64 -> [N, C]`.
     pub fn forward(&self, obs: &Tensor, actions: &Tensor) -> Tensor {
-        self.heads_forward(&self.first_layer(obs, &self.action_features(actions)))
+        let h = self.first_layer(obs, &self.action_features(actions));
+        self.heads_forward(&h, self.carried_rows(obs, 1).as_ref())
     }
 
     /// Q for M actions per state.
@@ -201,7 +236,8 @@ impl MultiCritic {
         let eval = |a: &Tensor| {
             let h = self.first_layer_from(&per_state, &self.action_features(a));
             let rows = h.size()[0];
-            self.heads_forward(&h.reshape([rows * n, -1]))
+            let carried = self.carried_rows(obs, rows);
+            self.heads_forward(&h.reshape([rows * n, -1]), carried.as_ref())
                 .reshape([rows, n, self.num_heads])
         };
         if per_state.requires_grad() || m * n <= CHUNK_ROWS || per_state.device() != Device::Cpu {
@@ -230,18 +266,21 @@ impl MultiCritic {
         let eye = Tensor::eye(n, (Kind::Float, obs.device())).unsqueeze(1);
         let h = self.first_layer(obs, &eye);
         let rows = obs.size()[0];
-        self.heads_forward(&h.reshape([n * rows, -1]))
+        let carried = self.carried_rows(obs, n);
+        self.heads_forward(&h.reshape([n * rows, -1]), carried.as_ref())
             .reshape([n, rows, self.num_heads])
     }
 
-    /// Further shared layers, then the heads. `[P, R, h1] -> [P, R, C]`.
-    fn heads_forward_members(&self, h: &Tensor) -> Tensor {
+    /// Further shared layers, then the heads.
+    /// `h [P, R, h1]`, `carried [P, R, F] -> [P, R, C]`.
+    fn heads_forward_members(&self, h: &Tensor, carried: Option<&Tensor>) -> Tensor {
         let mut x = h.shallow_clone();
         for layer in &self.shared_hidden {
-            x = layer.forward_members(&x);
+            x = layer.forward_members(&append_carried(x, carried));
             elu_(&mut x);
         }
-        self.heads.forward_members(&x)
+        self.heads
+            .forward_members(&append_carried(x, carried), carried)
     }
 
     /// Q for one action per state, per member.
@@ -257,7 +296,8 @@ impl MultiCritic {
             .action_layer
             .forward_members(&self.action_features(actions));
         let _ = h.g_add_(&self.obs_layer.forward_members(obs));
-        self.heads_forward_members(&self.norm.forward_tanh_members(&h))
+        let carried = self.carried_rows(obs, 1);
+        self.heads_forward_members(&self.norm.forward_tanh_members(&h), carried.as_ref())
     }
 
     /// Whether a pass on `obs` records gradients (a trainable critic outside
@@ -318,9 +358,13 @@ impl MultiCritic {
             let h = critic
                 .norm
                 .forward_tanh_members(&h.reshape([len, m * n, -1]));
-            critic
-                .heads_forward_members(&h)
-                .reshape([len, m, n, critic.num_heads])
+            let carried = critic.carried_rows(&obs, m);
+            critic.heads_forward_members(&h, carried.as_ref()).reshape([
+                len,
+                m,
+                n,
+                critic.num_heads,
+            ])
         })
     }
 
@@ -346,68 +390,16 @@ impl MultiCritic {
             let per_state = critic.obs_layer.forward_members(&obs).unsqueeze(1);
             let h = (per_action + per_state).reshape([len, a * n, -1]);
             let h = critic.norm.forward_tanh_members(&h);
-            critic
-                .heads_forward_members(&h)
-                .reshape([len, a, n, critic.num_heads])
+            let carried = critic.carried_rows(&obs, a);
+            critic.heads_forward_members(&h, carried.as_ref()).reshape([
+                len,
+                a,
+                n,
+                critic.num_heads,
+            ])
         })
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use tch::Device;
-
-    fn cfg() -> NetworkConfig {
-        NetworkConfig {
-            critic_layers: vec![16, 8],
-            ..NetworkConfig::default()
-        }
-    }
-
-    #[test]
-    fn heads_are_independent_networks_on_a_shared_layer() {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Continuous { dim: 2 }, 2);
-        let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
-        let act = Tensor::randn([4, 5, 2], (Kind::Float, Device::Cpu));
-        let q = critic.forward_samples(&obs, &act);
-        assert_eq!(q.size(), vec![4, 5, 2]);
-        let one = critic.forward(&obs, &act.get(1));
-        assert!(q.get(1).allclose(&one, 1e-5, 1e-6, false));
-        // Perturbing head 1's last layer changes only column 1.
-        tch::no_grad(|| {
-            let w = vs.variables()["heads.linear_1.bias"].shallow_clone();
-            let _ = w.narrow(0, 1, 1).fill_(5.0);
-        });
-        let q2 = critic.forward_samples(&obs, &act);
-        assert!(q2.select(2, 0).allclose(&q.select(2, 0), 1e-6, 1e-6, false));
-        assert!(!q2.select(2, 1).allclose(&q.select(2, 1), 1e-3, 1e-3, false));
-    }
-
-    #[test]
-    fn untracked_chunked_samples_match_the_tracked_pass() {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Continuous { dim: 2 }, 2);
-        // 6 samples x 1000 states > CHUNK_ROWS: the untracked pass runs 4 + 2 samples.
-        let obs = Tensor::randn([1000, 3], (Kind::Float, Device::Cpu));
-        let act = Tensor::randn([6, 1000, 2], (Kind::Float, Device::Cpu));
-        let tracked = critic.forward_samples(&obs, &act);
-        assert!(tracked.requires_grad());
-        let untracked = tch::no_grad(|| critic.forward_samples(&obs, &act));
-        assert_eq!(untracked.size(), vec![6, 1000, 2]);
-        let err = (&tracked - &untracked).abs().max().double_value(&[]);
-        assert!(err < 1e-5, "max difference {err}");
-    }
-
-    #[test]
-    fn one_hot_all_actions_matches_single_actions() {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Discrete { n: 4 }, 2);
-        let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
-        let all = critic.forward_all_actions(&obs);
-        assert_eq!(all.size(), vec![4, 5, 2]);
-        let a2 = critic.forward(&obs, &Tensor::full([5], 2, (Kind::Int64, Device::Cpu)));
-        assert!(all.get(2).allclose(&a2, 1e-5, 1e-6, false));
-    }
-}
+mod tests;
