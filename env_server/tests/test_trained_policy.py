@@ -76,12 +76,15 @@ def _elu(h: np.ndarray) -> np.ndarray:
     return np.where(h > 0, h, np.expm1(h))
 
 
-def _torso(p: dict[str, np.ndarray], x: np.ndarray, depth: int) -> np.ndarray:
-    """mlp/mod.rs LayerNormMlp in float64 numpy."""
+def _torso(p: dict[str, np.ndarray], x: np.ndarray, depth: int, carry: int = 0) -> np.ndarray:
+    """mlp/mod.rs LayerNormMlp in float64 numpy, carrying the last `carry` input
+    columns to every later layer's input and to the output."""
+    carried = x[:, x.shape[1] - carry :]
     h = np.tanh(_layer_norm(x @ p["torso.linear_0.weight"].T + p["torso.linear_0.bias"], p))
     for i in range(1, depth):
+        h = np.concatenate([h, carried], axis=1)
         h = _elu(h @ p[f"torso.linear_{i}.weight"].T + p[f"torso.linear_{i}.bias"])
-    return h
+    return np.concatenate([h, carried], axis=1)
 
 
 def test_gaussian_policy_matches_a_numpy_transcription(tmp_path: pathlib.Path) -> None:
@@ -163,10 +166,7 @@ def test_every_layer_preference_features_enter_each_later_layer_and_the_head() -
     policy = GaussianPolicy(_network(layers) | {"policy_preference": "every_layer"}, dims)
     policy.load_state_dict({k: torch.as_tensor(v) for k, v in params.items()})
     obs = rng.normal(0, 3, (6, obs_dim))
-    h = np.tanh(_layer_norm(obs @ params["torso.linear_0.weight"].T + params["torso.linear_0.bias"], params))
-    h = np.concatenate([h, obs[:, env_dim:]], axis=1) @ params["torso.linear_1.weight"].T
-    h = np.concatenate([_elu(h + params["torso.linear_1.bias"]), obs[:, env_dim:]], axis=1)
-    out = h @ params["head.weight"].T + params["head.bias"]
+    out = _torso(params, obs, len(layers), carry=f) @ params["head.weight"].T + params["head.bias"]
     got_mean, got_std = policy(torch.as_tensor(obs, dtype=torch.float32))
     np.testing.assert_allclose(got_mean.detach().numpy(), np.tanh(out[:, :d]), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(got_std.detach().numpy(), np.log1p(np.exp(out[:, d:])) + 1e-2, rtol=1e-5, atol=1e-6)
