@@ -15,8 +15,8 @@ fn cfg() -> NetworkConfig {
 fn heads_are_independent_networks_on_a_shared_layer() {
     let vs = nn::VarStore::new(Device::Cpu);
     let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Continuous { dim: 2 }, 2);
-    let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
-    let act = Tensor::randn([4, 5, 2], (Kind::Float, Device::Cpu));
+    let obs = normal(&[5, 3], 7);
+    let act = normal(&[4, 5, 2], 8);
     let q = critic.forward_samples(&obs, &act);
     assert_eq!(q.size(), vec![4, 5, 2]);
     let one = critic.forward(&obs, &act.get(1));
@@ -36,8 +36,8 @@ fn untracked_chunked_samples_match_the_tracked_pass() {
     let vs = nn::VarStore::new(Device::Cpu);
     let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Continuous { dim: 2 }, 2);
     // 6 samples x 1000 states > CHUNK_ROWS: the untracked pass runs 4 + 2 samples.
-    let obs = Tensor::randn([1000, 3], (Kind::Float, Device::Cpu));
-    let act = Tensor::randn([6, 1000, 2], (Kind::Float, Device::Cpu));
+    let obs = normal(&[1000, 3], 9);
+    let act = normal(&[6, 1000, 2], 10);
     let tracked = critic.forward_samples(&obs, &act);
     assert!(tracked.requires_grad());
     let untracked = tch::no_grad(|| critic.forward_samples(&obs, &act));
@@ -162,7 +162,7 @@ fn a_discrete_carrying_critic_scores_all_actions_as_single_actions() {
 fn one_hot_all_actions_matches_single_actions() {
     let vs = nn::VarStore::new(Device::Cpu);
     let critic = MultiCritic::new(&vs.root(), &cfg(), 3, ActionKind::Discrete { n: 4 }, 2);
-    let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
+    let obs = normal(&[5, 3], 7);
     let all = critic.forward_all_actions(&obs);
     assert_eq!(all.size(), vec![4, 5, 2]);
     let a2 = critic.forward(&obs, &Tensor::full([5], 2, (Kind::Int64, Device::Cpu)));
