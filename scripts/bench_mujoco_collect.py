@@ -7,10 +7,11 @@
 Rows as scripts/peers/results.py describes. Periodic evaluations come from the run's
 eval.csv (`run.eval_period`; none when the run had no such evaluations): on a
 single-objective task the mean return of `--objective`; on a two-objective task (an
-ε-conditioned run: one row per grid point per evaluation) the front of the grid points'
-mean returns, undiscounted and discounted. The final row is the run's end: summary.json's
-evaluation, or for a conditioned run its front (front/points.csv). wall_s is the agent's
-own wall time (summary.json); the periodic rows have none.
+ε-conditioned run: one row per grid point per evaluation; a fixed-ε run: one row, a
+one-point front) the front of the points' mean returns, undiscounted and discounted. The
+final row is the run's end: summary.json's evaluation, or for a conditioned run its front
+(front/points.csv). wall_s is the agent's own wall time (summary.json); the periodic rows
+have none.
 """
 
 from __future__ import annotations
@@ -55,8 +56,6 @@ def collect(run: pathlib.Path, task: str, seed: int, objective: str, settings: s
         raise SystemExit(f"{run}: expected the two objectives of {task}, got {names}")
     if summary["eval_discount"] != results.GAMMA:
         raise SystemExit(f"{run}: discounted returns use γ = {summary['eval_discount']}; the benchmark's is 0.99")
-    if summary.get("front") is None:
-        raise SystemExit(f"{run}: no front in summary.json; {task} needs an ε-conditioned run")
     by_step: dict[int, list[dict]] = {}
     for r in evals:
         by_step.setdefault(int(r["env_steps"]), []).append(r)
@@ -66,7 +65,15 @@ def collect(run: pathlib.Path, task: str, seed: int, objective: str, settings: s
         return results.row(task, "MO-MPO", seed, kind, steps, front=front, front_discounted=discounted, **extra)
 
     rows = [row("eval", steps, rs, **common) for steps, rs in sorted(by_step.items())]
-    return rows + [row("final", summary["env_steps"], read_csv(run / "front" / "points.csv"), **common, **wall)]
+    if summary.get("front") is not None:
+        end = read_csv(run / "front" / "points.csv")
+    else:
+        # A fixed-ε run is one preference: its front is its one evaluated point.
+        end = [
+            {f"return_{o}": v for o, v in zip(names, summary["eval_return"])}
+            | {f"discounted_return_{o}": v for o, v in zip(names, summary["eval_discounted_return"])}
+        ]
+    return rows + [row("final", summary["env_steps"], end, **common, **wall)]
 
 
 def main() -> None:
