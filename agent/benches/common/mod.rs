@@ -2,8 +2,10 @@
 //! The learner-step benchmarks' shared parts: `learner_step` (humanoid size, Table 3)
 //! and `learner_step_pendulum` (the old pendulum preset's size) run one full MO-MPO
 //! step on a fixed random batch through `run` (or, `learner_step` against PyTorch,
-//! through `prepare`, `warm_up` and `timed` in rounds); `vmpo_step` uses `time_steps`
-//! and `arg`, `checkpoint_cost` `arg` and `median`. A step is timed as the median of `--steps` steps after warm-up steps,
+//! through `prepare`, `warm_up` and `timed` in rounds); `learner_step_locomotion`
+//! builds its learner from a run config and uses `set_up`, `random_batch` and
+//! `time_steps`; `vmpo_step` uses `time_steps` and `arg`, `checkpoint_cost` `arg` and
+//! `median`. A step is timed as the median of `--steps` steps after warm-up steps,
 //! with the share of each phase.
 
 use agent::core::algo::{Learner, LearnerDims, SnippetBatch};
@@ -140,15 +142,44 @@ pub struct Prepared {
     pub steps: usize,
 }
 
-/// Builds the learner and batch for `size` and prints the size: `--threads N` (default:
-/// every core), `--steps N`; `--batch B` and `--samples M` change the size for
-/// exploration (the default is the size the benchmark is named for).
-pub fn prepare(size: StepSize) -> Prepared {
+/// Sets up libtorch for a timed benchmark: the allocator, `--threads N` (default: every
+/// core) and the learner's device. Returns the thread count and the device.
+pub fn set_up() -> (usize, tch::Device) {
     agent::core::device::tune_allocator();
     let threads = agent::core::device::configure_threads(
         Some(arg::<usize>("--threads", 0)).filter(|&n| n > 0),
     );
-    let device = agent::core::device::learner_device();
+    (threads, agent::core::device::learner_device())
+}
+
+/// A fixed random batch of `b` snippets of length `t` with `k` reward columns (libtorch's
+/// generator seeded 0, so every invocation steps on the same data).
+pub fn random_batch(
+    t: i64,
+    b: i64,
+    obs_dim: i64,
+    act_dim: i64,
+    k: i64,
+    device: tch::Device,
+) -> SnippetBatch {
+    tch::manual_seed(0);
+    let opts = (Kind::Float, tch::Device::Cpu);
+    SnippetBatch {
+        observations: Tensor::randn([t + 1, b, obs_dim], opts),
+        actions: Tensor::randn([t, b, act_dim], opts).clamp(-1.0, 1.0),
+        rewards: Tensor::randn([t, b, k], opts),
+        discounts: Tensor::ones([t, b], opts),
+        behaviour_log_probs: Tensor::randn([t, b], opts) - 20.0,
+        valid: Tensor::ones([t, b], opts),
+    }
+    .to_device(device)
+}
+
+/// Builds the learner and batch for `size` and prints the size: `--threads N` (default:
+/// every core), `--steps N`; `--batch B` and `--samples M` change the size for
+/// exploration (the default is the size the benchmark is named for).
+pub fn prepare(size: StepSize) -> Prepared {
+    let (threads, device) = set_up();
     let steps: usize = arg("--steps", 20);
     let StepSize {
         name,
@@ -167,17 +198,7 @@ pub fn prepare(size: StepSize) -> Prepared {
         obs_leaves: Vec::new(),
     };
     let learner = Learner::new(cfg.clone(), dims, device).expect("valid config");
-    tch::manual_seed(0);
-    let opts = (Kind::Float, tch::Device::Cpu);
-    let batch = SnippetBatch {
-        observations: Tensor::randn([t + 1, b, obs_dim], opts),
-        actions: Tensor::randn([t, b, act_dim], opts).clamp(-1.0, 1.0),
-        rewards: Tensor::randn([t, b, 2], opts),
-        discounts: Tensor::ones([t, b], opts),
-        behaviour_log_probs: Tensor::randn([t, b], opts) - 20.0,
-        valid: Tensor::ones([t, b], opts),
-    }
-    .to_device(device);
+    let batch = random_batch(t, b, obs_dim, act_dim, 2, device);
     println!(
         "{name}: obs {obs_dim}, act {act_dim}, B {b}, T {t}, M {}, policy {:?}, critic {:?}, K 2 (task + closed-form action_norm), device {device:?}, threads {threads}",
         cfg.mpo.num_samples, cfg.network.policy_layers, cfg.network.critic_layers
