@@ -11,7 +11,9 @@ single-objective task the mean return of `--objective`; on a two-objective task 
 one-point front) the front of the points' mean returns, undiscounted and discounted. The
 final row is the run's end: summary.json's evaluation, or for a conditioned run its front
 (front/points.csv). wall_s is the agent's own wall time (summary.json); the periodic rows
-have none.
+have none. A run stopped before its budget (summary.json's `interrupted`) is refused,
+unless `--stopped`: then its periodic evaluations are appended alone, with no final row
+(a run resumed later and collected again adds them once more: use a session of its own).
 """
 
 from __future__ import annotations
@@ -33,10 +35,16 @@ def points(rows: list[dict], prefix: str, objectives: list[str]) -> list[tuple[f
     return [tuple(float(r[f"{prefix}{o}"]) for o in objectives) for r in rows]
 
 
-def collect(run: pathlib.Path, task: str, seed: int, objective: str, settings: str) -> list[dict]:
+def collect(
+    run: pathlib.Path, task: str, seed: int, objective: str, settings: str, stopped: bool = False
+) -> list[dict]:
     summary = json.loads((run / "summary.json").read_text())
-    if summary.get("interrupted"):
-        raise SystemExit(f"{run}: the run was interrupted ({summary['interrupted']}); not a finished run")
+    finished = not summary.get("interrupted")
+    if not finished and not stopped:
+        raise SystemExit(
+            f"{run}: the run was interrupted ({summary['interrupted']}) at {summary['env_steps']} env steps; "
+            "not a finished run (--stopped appends its periodic evaluations alone)"
+        )
     names = summary["objectives"]
     evals = read_csv(run / "eval.csv") if (run / "eval.csv").exists() else []
     common = {"settings": settings}
@@ -45,12 +53,13 @@ def collect(run: pathlib.Path, task: str, seed: int, objective: str, settings: s
         if objective not in names:
             raise SystemExit(f"--objective: expected one of the run's objectives {names}, got {objective!r}")
         ret = summary["eval_return"][names.index(objective)]
+        final = results.row(task, "MO-MPO", seed, "final", summary["env_steps"], return_=ret, **common, **wall)
         return [
             results.row(
                 task, "MO-MPO", seed, "eval", int(r["env_steps"]), return_=float(r[f"return_{objective}"]), **common
             )
             for r in evals
-        ] + [results.row(task, "MO-MPO", seed, "final", summary["env_steps"], return_=ret, **common, **wall)]
+        ] + ([final] if finished else [])
 
     if len(names) != 2:
         raise SystemExit(f"{run}: expected the two objectives of {task}, got {names}")
@@ -65,6 +74,8 @@ def collect(run: pathlib.Path, task: str, seed: int, objective: str, settings: s
         return results.row(task, "MO-MPO", seed, kind, steps, front=front, front_discounted=discounted, **extra)
 
     rows = [row("eval", steps, rs, **common) for steps, rs in sorted(by_step.items())]
+    if not finished:
+        return rows
     if summary.get("front") is not None:
         end = read_csv(run / "front" / "points.csv")
     else:
@@ -85,12 +96,18 @@ def main() -> None:
     ap.add_argument("--settings", default="", help="what ran (config and overrides)")
     ap.add_argument("--results", type=pathlib.Path, required=True)
     ap.add_argument("--session", required=True)
+    ap.add_argument(
+        "--stopped", action="store_true", help="a run stopped before its budget: append its periodic evaluations alone"
+    )
     args = ap.parse_args()
-    rows = collect(args.run, args.task, args.seed, args.objective, args.settings)
+    rows = collect(args.run, args.task, args.seed, args.objective, args.settings, args.stopped)
+    if not rows:
+        raise SystemExit(f"{args.run}: the run was stopped before its first periodic evaluation; nothing to append")
     results.append(args.results, rows, args.session)
     last = rows[-1]
     score = last["return"] or f"HV {last['hv_discounted']} discounted, {last['hv_undiscounted']} undiscounted"
-    print(f"MO-MPO {args.task} seed {args.seed}: {score} at {last['env_steps']} env steps, {last['wall_s']} s")
+    wall = f"{last['wall_s']} s" if last["kind"] == "final" else "stopped there (periodic evaluations only)"
+    print(f"MO-MPO {args.task} seed {args.seed}: {score} at {last['env_steps']} env steps, {wall}")
 
 
 if __name__ == "__main__":
