@@ -7,9 +7,9 @@
 //! setting costs per learner step and per budget, the wall side of
 //! docs/benchmarks/mujoco.md's two-objective comparison.
 //!
-//! Prints each phase's share, the median step and the learner's share of a run's wall
-//! time at the config's `run.learner_steps_per_env_step` and `run.total_env_steps`
-//! (env stepping, evaluation and checkpoints come on top).
+//! Prints each phase's share, the median step and the learner's time over the config's
+//! budget (`run.learner_steps_per_env_step` x `run.total_env_steps`; env stepping,
+//! evaluation and checkpoints come on top of it in a run's wall time).
 //!
 //! Run: `cargo bench -p agent --bench learner_step_locomotion [-- --threads 1 --steps 20
 //! --config FILE --set PATH=VALUE ... --obs 17 --act 6]` (mo-hopper-2obj: `--obs 11 --act 3`).
