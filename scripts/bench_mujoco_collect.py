@@ -52,14 +52,16 @@ def collect(
     if task not in results.REFERENCES:
         if objective not in names:
             raise SystemExit(f"--objective: expected one of the run's objectives {names}, got {objective!r}")
-        ret = summary["eval_return"][names.index(objective)]
-        final = results.row(task, "MO-MPO", seed, "final", summary["env_steps"], return_=ret, **common, **wall)
-        return [
+        rows = [
             results.row(
                 task, "MO-MPO", seed, "eval", int(r["env_steps"]), return_=float(r[f"return_{objective}"]), **common
             )
             for r in evals
-        ] + ([final] if finished else [])
+        ]
+        if not finished:
+            return rows  # a stopped run's summary has no final evaluation
+        ret = summary["eval_return"][names.index(objective)]
+        return rows + [results.row(task, "MO-MPO", seed, "final", summary["env_steps"], return_=ret, **common, **wall)]
 
     if len(names) != 2:
         raise SystemExit(f"{run}: expected the two objectives of {task}, got {names}")

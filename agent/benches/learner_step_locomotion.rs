@@ -33,10 +33,13 @@ fn main() {
         .filter(|w| w[0] == "--set")
         .map(|w| w[1].clone())
         .collect();
-    let cfg = TrainConfig::load_with(&path, &sets)
+    let TrainConfig {
+        learner: learner_cfg,
+        run,
+        ..
+    } = TrainConfig::load_with(&path, &sets)
         .unwrap_or_else(|e| panic!("--config {}: {e}", path.display()));
     let (obs_dim, act_dim): (i64, i64) = (common::arg("--obs", 17), common::arg("--act", 6));
-    let learner_cfg = cfg.learner.clone();
     let k = learner_cfg.objectives.len() as i64;
     let dims = LearnerDims {
         action_bounds: Some(ActionBounds {
@@ -72,11 +75,11 @@ fn main() {
     let steps: usize = common::arg("--steps", 20);
     let totals = common::time_steps(&mut learner, &batch, 3, steps, common::MPO_PHASES);
     let ms = common::median(totals);
-    let learner_steps = cfg.run.learner_steps_per_env_step * cfg.run.total_env_steps as f64;
+    let learner_steps = run.learner_steps_per_env_step * run.total_env_steps as f64;
     println!(
         "learner time for {} env steps at {} learner steps each: {:.0} s",
-        cfg.run.total_env_steps,
-        cfg.run.learner_steps_per_env_step,
+        run.total_env_steps,
+        run.learner_steps_per_env_step,
         ms * learner_steps / 1e3
     );
     println!("learner_step_ms_median={ms:.2}");
