@@ -1,8 +1,9 @@
-//! `--resume` continues a run: after kill -9 it reaches its budget with exact counters
-//! and every log row once (learner.jsonl, episodes.csv, TensorBoard); resuming one
-//! checkpoint twice gives the same learner.jsonl; a checkpoint without replay resumes
-//! without a catch-up burst; `--set` of a field a running run may not change is
-//! refused. Runs the real CLI binary against a real env_server.
+//! `--resume` continues a run: after kill -9 it reaches its budget with exact counters,
+//! every log row once (learner.jsonl, episodes.csv, TensorBoard) and wall times that
+//! go on from the checkpoint's; resuming one checkpoint twice gives the same
+//! learner.jsonl; a checkpoint without replay resumes without a catch-up burst;
+//! `--set` of a field a running run may not change is refused. Runs the real CLI
+//! binary against a real env_server.
 //!
 //! A resumed run matches the uninterrupted one only up to its actor's first env step:
 //! env sessions cannot be saved, so a resume starts new episodes (seeded from the act
@@ -29,6 +30,18 @@ fn resume(run: &Path, server: &str, extra: &[&str]) {
         .status()
         .unwrap();
     assert!(status.success(), "{status:?}");
+}
+
+/// learner.jsonl's `wall_seconds` column.
+fn learner_walls(run: &Path) -> Vec<f64> {
+    let text = std::fs::read_to_string(run.join("learner.jsonl")).unwrap();
+    text.lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["wall_seconds"]
+                .as_f64()
+                .unwrap()
+        })
+        .collect()
 }
 
 /// The learner steps logged every 20 up to `last`: each exactly once, in order.
@@ -130,13 +143,25 @@ async fn kill_9_then_resume_reaches_the_budget_with_every_row_once() {
         .map(|r| r.split(',').next().unwrap().parse().unwrap())
         .collect();
     assert!(stamps.windows(2).all(|w| w[0] <= w[1]), "{stamps:?}");
+    // The run's clock goes on from the checkpoint's: every row after it, and the
+    // summary, count the first invocation's training time too.
+    let walls = learner_walls(&run);
+    let at = before.learner_steps as usize;
+    assert!(before.wall_seconds > 0.0, "{before:?}");
+    assert!(
+        walls[at..].iter().all(|&w| w >= before.wall_seconds),
+        "wall_seconds after the checkpoint's {}: {:?}",
+        before.wall_seconds,
+        &walls[at..]
+    );
+    assert!(walls.windows(2).all(|w| w[0] <= w[1]), "{walls:?}");
+    assert!(last["wall_seconds"].as_f64().unwrap() >= walls[walls.len() - 1]);
 
     // Up to the checkpoint the run is the uninterrupted one; after it, the learner
     // steps up to the burst's end are too (same learner, replay, sampler position and
     // noise counters); from the next actor step on, the resumed run's new env
     // sessions make the data differ.
     let resumed = learner_rows(&run);
-    let at = before.learner_steps as usize;
     let env_at = whole[at - 1]["env_steps"].as_u64().unwrap();
     let burst_end = whole
         .iter()

@@ -64,7 +64,8 @@ pub struct LearnerRecord {
     pub learner_step: u64,
     /// Env steps at that moment.
     pub env_steps: u64,
-    /// Seconds since the run (or resume) started.
+    /// The run's training wall seconds ([`Schedule::elapsed_seconds`]: a resumed
+    /// run's go on from its checkpoint's).
     pub wall_seconds: f64,
     /// Per critic head: 0.5 * mean squared Retrace error.
     pub critic_loss: Vec<f32>,
@@ -220,12 +221,11 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
         members,
         periods,
     } = ctx;
-    let started = Instant::now();
     let mut members: Vec<Running> = members
         .into_iter()
         .map(|run| Running {
             previous: Mark {
-                wall_seconds: 0.0,
+                wall_seconds: run.schedule.elapsed_seconds(),
                 env_steps: run.schedule.counters().env_steps,
                 learner_steps: learner.step_count(),
             },
@@ -251,7 +251,6 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
                 step_ms: t0.elapsed().as_secs_f64() * 1e3,
                 n: learner.step_count(),
                 actors_may_load,
-                started,
             };
             for (p, (m, stats)) in members.iter_mut().zip(all_stats).enumerate() {
                 if m.done.is_none() {
@@ -292,8 +291,6 @@ struct Stepped {
     n: u64,
     /// Whether an actor may load a policy before the next step (then it is published).
     actors_may_load: bool,
-    /// When the loop started (wall times of log records).
-    started: Instant,
 }
 
 /// Lockstep: waits until every running member allows a step. A member whose run
@@ -378,7 +375,7 @@ fn log_step(
     objectives: &BoundObjectives,
 ) -> Result<(), LearnerLoopError> {
     let now = Mark {
-        wall_seconds: step.started.elapsed().as_secs_f64(),
+        wall_seconds: m.run.schedule.elapsed_seconds(),
         env_steps: m.run.schedule.counters().env_steps,
         learner_steps: step.n,
     };

@@ -73,6 +73,7 @@ impl Checkpointer {
     ) -> Result<PathBuf, CheckpointError> {
         let dir = self.files.dir().to_path_buf();
         let origin = schedule.origin();
+        let wall_seconds = schedule.elapsed_seconds();
         // Under the schedule's lock no actor is between its replay insert and its log
         // rows, so counters, replay and file lengths agree.
         let snapshot = schedule.snapshot(|c, replay| {
@@ -100,6 +101,7 @@ impl Checkpointer {
                 pace_origin: origin,
                 replay: state,
                 logs,
+                wall_seconds,
             };
             Ok::<_, CheckpointError>(Snapshot {
                 progress,

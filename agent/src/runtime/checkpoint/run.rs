@@ -48,6 +48,11 @@ pub struct RunProgress {
     pub replay: Option<ReplayState>,
     /// Lengths of the log files, which a resume truncates back to.
     pub logs: LogLengths,
+    /// Training wall seconds when the checkpoint was written, summed over the run's
+    /// invocations: a resume's clock goes on from here, so a resumed run's wall times
+    /// are the run's, not its last leg's. 0 in checkpoints written before it was kept.
+    #[serde(default)]
+    pub wall_seconds: f64,
 }
 
 impl RunProgress {
@@ -65,6 +70,7 @@ impl RunProgress {
             pace_origin: PaceOrigin::default(),
             replay: None,
             logs: LogLengths::default(),
+            wall_seconds: 0.0,
         }
     }
 }

@@ -69,8 +69,11 @@ pub struct Schedule {
     /// Where the pace counts from (module docs).
     origin: PaceOrigin,
     /// When this invocation's actor-learner loop was set up (wall-clock stamps of
-    /// episodes and of "solved").
+    /// episodes, learner records, "solved" and the summary).
     started: Instant,
+    /// Training wall seconds of the invocations before this one (a resume's
+    /// checkpoint's), which the clock continues from.
+    elapsed_before: f64,
     /// Periodic evaluations, when asked for.
     eval_tap: Mutex<Option<EvalTap>>,
 }
@@ -87,7 +90,16 @@ impl Schedule {
             replay: Mutex::new(replay),
             pace,
             started: Instant::now(),
+            elapsed_before: 0.0,
             eval_tap: Mutex::new(None),
+        }
+    }
+
+    /// This schedule with its clock going on from `seconds` of earlier invocations.
+    pub fn continuing_from(self, seconds: f64) -> Self {
+        Self {
+            elapsed_before: seconds,
+            ..self
         }
     }
 
@@ -109,10 +121,11 @@ impl Schedule {
             .take();
     }
 
-    /// Seconds since the schedule was made: the start of this `train` invocation's
-    /// training, after the learner is built and before the first env step.
+    /// The run's training wall seconds: since the schedule was made (after the
+    /// learner is built and before the first env step), plus the earlier invocations'
+    /// when resumed.
     pub fn elapsed_seconds(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
+        self.elapsed_before + self.started.elapsed().as_secs_f64()
     }
 
     /// When the run first counted as solved, if it has.

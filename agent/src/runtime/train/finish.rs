@@ -164,7 +164,7 @@ impl Population {
             env_steps: counters.env_steps,
             learner_steps: counters.learner_steps,
             episodes: counters.episodes,
-            wall_seconds: self.started.elapsed().as_secs_f64(),
+            wall_seconds: run.schedule.elapsed_seconds(),
             recent_train_return: counters.recent_mean_return(),
             temperature: stats.map(|s| s.temperature).unwrap_or_default(),
             learner_objectives: self.learner_objectives.clone(),

@@ -19,7 +19,6 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
 
 use serde::Serialize;
 use tch::Device;
@@ -132,7 +131,9 @@ pub struct TrainSummary {
     pub learner_steps: u64,
     /// Training episodes finished.
     pub episodes: u64,
-    /// Wall time of this invocation.
+    /// The run's training wall seconds, a resumed run's summed over its invocations
+    /// (from each one's first env step; connecting and building the learner, a
+    /// second or so, are left out).
     pub wall_seconds: f64,
     /// Mean undiscounted return of the last training episodes.
     pub recent_train_return: Vec<f64>,
@@ -219,8 +220,6 @@ struct Population {
     grid: Option<Arc<PreferenceGrid>>,
     /// Snippet sizes of the replays.
     layout: SnippetLayout,
-    /// When this invocation started (the summaries' wall time).
-    started: Instant,
     runs: Vec<MemberRun>,
 }
 

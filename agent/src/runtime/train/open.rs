@@ -4,7 +4,6 @@
 //! the learner loop.
 
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
 
 use tokio::sync::watch;
 
@@ -46,7 +45,6 @@ impl Population {
         addresses: &[String],
         options: &TrainOptions,
     ) -> Result<Opening, TrainError> {
-        let started = Instant::now();
         let cfg = cfgs[0].clone();
         configure_threads(cfg.learner.num_threads);
         let servers = Arc::new(
@@ -77,7 +75,6 @@ impl Population {
             discount: spec.discount,
             dims,
             device,
-            started,
             runs: Vec::with_capacity(cfgs.len()),
         };
         let mut members = Vec::with_capacity(cfgs.len());
