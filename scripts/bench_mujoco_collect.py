@@ -10,8 +10,11 @@ single-objective task the mean return of `--objective`; on a two-objective task 
 ε-conditioned run: one row per grid point per evaluation; a fixed-ε run: one row, a
 one-point front) the front of the points' mean returns, undiscounted and discounted. The
 final row is the run's end: summary.json's evaluation, or for a conditioned run its front
-(front/points.csv). wall_s is the agent's own wall time (summary.json); the periodic rows
-have none. A run stopped before its budget (summary.json's `interrupted`) is refused,
+(front/points.csv). wall_s is the agent's own training wall time: summary.json's for the
+final row; for a periodic row, learner.jsonl's at its last record at or before that env
+step (records come every `run.log_period` learner steps). Agents before the run clock
+was kept in checkpoints restarted it at 0 on each resume; such a run's legs are added up
+here. A run stopped before its budget (summary.json's `interrupted`) is refused,
 unless `--stopped`: then its periodic evaluations are appended alone, with no final row
 (a run resumed later and collected again adds them once more: use a session of its own).
 """
@@ -35,6 +38,28 @@ def points(rows: list[dict], prefix: str, objectives: list[str]) -> list[tuple[f
     return [tuple(float(r[f"{prefix}{o}"]) for o in objectives) for r in rows]
 
 
+def training_clock(run: pathlib.Path) -> tuple[list[tuple[int, float]], float]:
+    """learner.jsonl's (env steps, wall seconds), the legs of an older agent's resumes
+    added up; and the seconds those earlier legs add to its summary's wall time."""
+    path = run / "learner.jsonl"
+    marks: list[tuple[int, float]] = []
+    earlier, last = 0.0, 0.0
+    for line in path.read_text().splitlines() if path.exists() else []:
+        record = json.loads(line)
+        wall = float(record["wall_seconds"])
+        if wall < last:  # a resume by an agent that restarted its clock
+            earlier += last
+        last = wall
+        marks.append((int(record["env_steps"]), earlier + wall))
+    return marks, earlier
+
+
+def wall_at(marks: list[tuple[int, float]], steps: int) -> dict:
+    """wall_s of the last record at or before `steps` env steps, if any."""
+    before = [wall for at, wall in marks if at <= steps]
+    return {"wall_s": round(before[-1], 3)} if before else {}
+
+
 def collect(
     run: pathlib.Path, task: str, seed: int, objective: str, settings: str, stopped: bool = False
 ) -> list[dict]:
@@ -48,13 +73,21 @@ def collect(
     names = summary["objectives"]
     evals = read_csv(run / "eval.csv") if (run / "eval.csv").exists() else []
     common = {"settings": settings}
-    wall = {"wall_s": summary["wall_seconds"]}
+    marks, earlier = training_clock(run)
+    wall = {"wall_s": summary["wall_seconds"] + earlier}
     if task not in results.REFERENCES:
         if objective not in names:
             raise SystemExit(f"--objective: expected one of the run's objectives {names}, got {objective!r}")
         rows = [
             results.row(
-                task, "MO-MPO", seed, "eval", int(r["env_steps"]), return_=float(r[f"return_{objective}"]), **common
+                task,
+                "MO-MPO",
+                seed,
+                "eval",
+                int(r["env_steps"]),
+                return_=float(r[f"return_{objective}"]),
+                **common,
+                **wall_at(marks, int(r["env_steps"])),
             )
             for r in evals
         ]
@@ -75,7 +108,7 @@ def collect(
         front, discounted = points(rs, "return_", names), points(rs, "discounted_return_", names)
         return results.row(task, "MO-MPO", seed, kind, steps, front=front, front_discounted=discounted, **extra)
 
-    rows = [row("eval", steps, rs, **common) for steps, rs in sorted(by_step.items())]
+    rows = [row("eval", steps, rs, **common, **wall_at(marks, steps)) for steps, rs in sorted(by_step.items())]
     if not finished:
         return rows
     if summary.get("front") is not None:
