@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Set up (scripts/setup.sh), check formatting and lints (cargo fmt, clippy with
 # warnings as errors, ruff) and the docs (scripts/docs.sh: the MkDocs site built
-# strictly, the paths it names), and run every test: env_server's Python tests, then
-# the Rust unit, golden and end-to-end tests (which start real env_server
-# processes on 127.0.0.1 with OS-chosen ports). Needs no GPU and no network
-# beyond the package registries used by setup.
+# strictly, the paths it names), and run every test: env_server's and the benchmark
+# scripts' Python tests, then the Rust unit, golden and end-to-end tests (which start
+# real env_server processes on 127.0.0.1 with OS-chosen ports). Needs no GPU and no
+# network beyond the package registries used by setup.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
@@ -21,8 +21,9 @@ cargo clippy --locked --workspace --all-targets -- -D warnings
 echo "==> the agent binary (test_ray.py's sweep test runs it)"
 cargo build --locked -p agent --bin agent
 
-echo "==> Python tests (env_server)"
+echo "==> Python tests (env_server, then the benchmark scripts)"
 (cd env_server && ../.venv/bin/python -m pytest -q tests)
+.venv/bin/python -m pytest -q scripts/tests
 
 echo "==> Rust tests (unit, golden, end-to-end)"
 cargo test --locked --workspace
