@@ -145,13 +145,12 @@ pub(super) fn schedule_for(
     let mut solve = SolveTracker::new(&cfg.run.solve_threshold, objectives)?;
     solve.stop_on_solve = cfg.run.stop_on_solve;
     let mut origin = PaceOrigin::default();
-    let mut elapsed_before = 0.0;
     if let Some(progress) = resumed {
-        elapsed_before = progress.wall_seconds;
         solve.restore(progress.solve.clone());
         origin = restore_schedule(run_dir, progress, &mut replay)?;
     }
     let counters = Counters { solve, ..counters };
+    let elapsed_before = resumed.map_or(0.0, |p| p.wall_seconds);
     Ok(Schedule::new(replay, pace, counters, origin).continuing_from(elapsed_before))
 }
 
