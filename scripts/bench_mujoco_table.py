@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The MuJoCo benchmark's table, stability check and curves, from its results file.
 
-    python scripts/bench_mujoco_table.py [--results docs/benchmarks/mujoco-results.csv]
+    python scripts/bench_mujoco_table.py [--results docs/benchmarks/mujoco-results.csv[,FILE..]]
         [--session ID[,ID..]] [--tasks TASK[,TASK..]] [--plots DIR] [--ref-undiscounted TASK=X:Y]
         [--per-evaluation]
 
@@ -192,7 +192,12 @@ def draw(task: str, task_runs: dict[tuple, list[dict]], out: pathlib.Path) -> No
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--results", type=pathlib.Path, default=pathlib.Path("docs/benchmarks/mujoco-results.csv"))
+    ap.add_argument(
+        "--results",
+        default="docs/benchmarks/mujoco-results.csv",
+        help="results files (comma-separated), read as one: e.g. the peers' runs of the results file "
+        "beside our lever runs of docs/benchmarks/mujoco-levers.csv",
+    )
     ap.add_argument("--session", default="", help="only these sessions' runs (comma-separated)")
     ap.add_argument("--tasks", default="", help="only these tasks' runs (comma-separated)")
     ap.add_argument("--plots", default="", help="folder for the curves (none by default)")
@@ -211,7 +216,8 @@ def main() -> None:
         ap.error(f"--tasks: expected some of {', '.join(TASKS)}, got {', '.join(unknown)}")
     rows = [
         r
-        for r in results.read(args.results)
+        for path in filter(None, args.results.split(","))
+        for r in results.read(pathlib.Path(path))
         if (not sessions or r["session"] in sessions) and (not tasks or r["task"] in tasks)
     ]
     for spec in args.ref_undiscounted:
