@@ -20,7 +20,8 @@ evaluations against env steps, coloured by method (none by default, so that a lo
 another results file or a few sessions leaves the page's curves as they are). --per-evaluation
 prints, instead of the summary, every run's evaluations: a table per set of evaluation
 points, a row per task, seed and method (two-objective tasks: a row per hypervolume,
-discounted in thousands and undiscounted in millions), the final evaluation in bold.
+discounted in thousands and undiscounted in millions), the final evaluation in bold; where
+the sessions read hold one task, seed and method twice, each of those rows names its session.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 import statistics
+from collections import Counter
 
 from peers import results
 from PIL import Image, ImageDraw, ImageFont
@@ -120,7 +122,9 @@ def table(by_run: dict[tuple, list[dict]]) -> list[str]:
 
 
 def per_evaluation(by_run: dict[tuple, list[dict]]) -> list[str]:
-    """Each run's evaluations, one table per set of evaluation points."""
+    """Each run's evaluations, one table per set of evaluation points. Where one task,
+    seed and method ran in several of the sessions read, each row names its session."""
+    repeated = Counter((task, method, seed) for task, _, method, seed in by_run)
     tables: dict[tuple, list[tuple]] = {}
     for key, run in by_run.items():
         steps = tuple(int(r["env_steps"]) for r in run if r["kind"] == "eval")
@@ -139,7 +143,8 @@ def per_evaluation(by_run: dict[tuple, list[dict]]) -> list[str]:
             for n, (suffix, column, unit) in enumerate(scores):
                 fmt = "{:.0f}" if unit == 1.0 else ("{:.1f}" if unit == 1e3 else "{:.2f}")
                 cell = lambda r: fmt.format(float(r[column]) / unit).replace("-", "−") if r[column] else ""  # noqa: E731
-                cells = [f"{task.removesuffix('-v5')}, {seed}", method + suffix]
+                who = method + (f" (`{session}`)" if repeated[task, method, seed] > 1 else "")
+                cells = [f"{task.removesuffix('-v5')}, {seed}", who + suffix]
                 cells += [cell(r) for r in run if r["kind"] == "eval"]
                 cells += [f"**{cell(run[-1])}**", f"{float(run[-1]['wall_s']):.0f}" if n == 0 else ""]
                 lines.append("| " + " | ".join(cells) + " |")

@@ -101,3 +101,14 @@ def test_the_stability_check(returns, why):
     by_run = table_script.runs(single_objective(returns))
     [run] = by_run.values()
     assert table_script.unstable(run) == why
+
+
+def test_per_evaluation_names_the_session_where_a_run_repeats(monkeypatch, capsys, two_files):
+    peers, levers = two_files
+    # Ours again, seed 0 in another session: (0, 0) -> 10,000 at 20k, (50, 0) -> 15,000.
+    results.append(levers, run_rows("MO-MPO", 0, [(20000, 0.0), (40000, 50.0)], 2000.0), "t")
+    out = table(monkeypatch, capsys, "--results", f"{peers},{levers}", "--per-evaluation")
+    assert "| mo-halfcheetah, 0 | MO-MPO (`s`), HV disc. (k) | 5.0 | **20.0** | 3000 |" in out
+    assert "| mo-halfcheetah, 0 | MO-MPO (`t`), HV disc. (k) | 10.0 | **15.0** | 2000 |" in out
+    # CAPQL's seed 0 ran once: no session named.
+    assert "| mo-halfcheetah, 0 | CAPQL, HV disc. (k) | 10.0 | **10.0** | 1000 |" in out
