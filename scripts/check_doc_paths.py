@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parent.parent
 BASES = (ROOT, ROOT / "env_server")
 OUTSIDE_DOCS = ("README.md", "env_server/README.md", "deploy/README.md", "examples/plugin/README.md")
 TOP = ("agent", "configs", "deploy", "docs", "env_server", "examples", "proto", "scripts", "tests")
-PATH = re.compile(r"(?<![\w./-])((?:" + "|".join(TOP) + r")/[\w./{},<>*-]*)")
+# A comma separates paths (`--results a.csv,b.csv`) except inside braces (`{algo,nets}`).
+PATH = re.compile(r"(?<![\w./-])((?:" + "|".join(TOP) + r")/(?:[\w./<>*-]|\{[^{}\s]*\})*)")
 CODE = re.compile(r"```.*?```|`[^`\n]+`", re.S)
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
