@@ -18,8 +18,11 @@ cargo fmt --all --check
 scripts/docs.sh
 cargo clippy --locked --workspace --all-targets -- -D warnings
 
-echo "==> the agent binary (test_ray.py's sweep test runs it)"
-cargo build --locked -p agent --bin agent
+echo "==> the Rust tests' build, with the agent binary (test_ray.py's sweep test runs it)"
+# One build for both: `cargo build -p agent` would resolve features for the agent
+# alone, and the workspace's test build would then compile tonic, rustls, tch and the
+# agent a second time with the workspace's features.
+cargo test --locked --workspace --no-run
 
 echo "==> Python tests (env_server, then the benchmark scripts)"
 (cd env_server && ../.venv/bin/python -m pytest -q tests)
