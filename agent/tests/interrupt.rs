@@ -35,6 +35,38 @@ fn signal_after(child: &mut Child, runs: &Path, learner_steps: u64, signal: i32)
     run
 }
 
+/// learner.jsonl's phases of each logged step: the policy evaluation, E-step and
+/// M-step took time, and together with the sampling and the target update they fit in
+/// the step's `step_ms` (all are read off one clock within the step).
+fn assert_phases_add_up(run: &Path) {
+    let text = std::fs::read_to_string(run.join("learner.jsonl")).unwrap();
+    for line in text.lines() {
+        let row: serde_json::Value = serde_json::from_str(line).unwrap();
+        let ms = |key: &str| {
+            row["phases"][key]
+                .as_f64()
+                .unwrap_or_else(|| panic!("{key}: {row}"))
+        };
+        for key in ["policy_evaluation_ms", "e_step_ms", "m_step_ms"] {
+            assert!(ms(key) > 0.0, "{key}: {row}");
+        }
+        let keys = [
+            "sample_ms",
+            "policy_evaluation_ms",
+            "e_step_ms",
+            "m_step_ms",
+            "target_update_ms",
+        ];
+        assert!(keys.iter().all(|k| ms(k) >= 0.0), "{row}");
+        let total: f64 = keys.iter().map(|k| ms(k)).sum();
+        let step_ms = row["step_ms"].as_f64().unwrap();
+        assert!(
+            total <= step_ms * (1.0 + 1e-9),
+            "phases {total} ms > step {step_ms} ms: {row}"
+        );
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_interrupted_run_still_reports_and_resumes_to_the_end() {
     let server = LocalServer::start(&ServerOptions::default()).await.unwrap();
@@ -65,6 +97,7 @@ async fn an_interrupted_run_still_reports_and_resumes_to_the_end() {
         "train/return/time",
         "learner/temperature/treasure",
         "learner/alpha/0",
+        "learner/phase_ms/m_step",
         "throughput/env_steps_per_second",
     ] {
         assert!(
@@ -73,6 +106,7 @@ async fn an_interrupted_run_still_reports_and_resumes_to_the_end() {
             scalars.keys()
         );
     }
+    assert_phases_add_up(&run);
     // Every chart is by env step, and no training episode is stamped past the stop.
     assert!(
         scalars["train/return/treasure"]

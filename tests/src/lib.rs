@@ -7,6 +7,7 @@ use std::path::Path;
 
 use agent::env::grpc::EnvClient;
 use agent::env::server_process::{LocalServer, ServerOptions};
+use agent::runtime::learner::LearnerRecord;
 use agent::runtime::run_config::TrainConfig;
 use agent::sweep::{FrontSummary, SweepConfig};
 
@@ -58,12 +59,7 @@ pub fn curve(run_dir: &Path) -> Curve {
         .map(|l| {
             let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
             let o = v.as_object_mut().unwrap();
-            for clock in [
-                "wall_seconds",
-                "step_ms",
-                "env_steps_per_second",
-                "learner_steps_per_second",
-            ] {
+            for clock in LearnerRecord::CLOCK_FIELDS {
                 o.remove(clock);
             }
             v.to_string()

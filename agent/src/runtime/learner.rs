@@ -20,7 +20,7 @@ use serde::Serialize;
 use tokio::sync::watch;
 
 use crate::core::algo::objectives::BoundObjectives;
-use crate::core::algo::{Learner, LearnerStats, SnippetBatch};
+use crate::core::algo::{Learner, LearnerStats, PhaseTimings, SnippetBatch};
 use crate::core::nets::PolicySnapshot;
 use crate::report::metrics::RunFiles;
 use crate::report::tensorboard::Scalar;
@@ -85,10 +85,22 @@ pub struct LearnerRecord {
     pub policy_step_kept: f32,
     /// Milliseconds of the step.
     pub step_ms: f64,
+    /// Where `step_ms` went; what they leave of it is the loop's bookkeeping.
+    pub phases: StepPhases,
     /// Env steps per second since the previous record (or the start).
     pub env_steps_per_second: f64,
     /// Learner steps per second since the previous record (or the start).
     pub learner_steps_per_second: f64,
+}
+
+/// Milliseconds of one logged learner step by phase (the step's own, not an average).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StepPhases {
+    /// Drawing the members' batches from replay and moving them to the device.
+    pub sample_ms: f64,
+    /// The learner's phases (`PhaseTimings`).
+    #[serde(flatten)]
+    pub learner: PhaseTimings,
 }
 
 /// Labels for a vector of statistics: objective names when there is one entry per
@@ -104,6 +116,16 @@ fn labels(values: &[f32], objectives: &[String], parts: bool) -> Vec<String> {
 }
 
 impl LearnerRecord {
+    /// The fields that read a clock: they differ between two runs that are otherwise
+    /// the same, which is what the reproducibility and resume checks leave out.
+    pub const CLOCK_FIELDS: [&str; 5] = [
+        "wall_seconds",
+        "step_ms",
+        "phases",
+        "env_steps_per_second",
+        "learner_steps_per_second",
+    ];
+
     /// The record as TensorBoard scalars (`learner/...`, `throughput/...`), labelled by
     /// critic head (`names.critic_names`), by the E-step's objective
     /// (`BoundObjectives::names`), or `mean`/`covariance` for the Gaussian trust
@@ -132,6 +154,16 @@ impl LearnerRecord {
             f64::from(self.policy_step_kept),
         ));
         out.push(Scalar::new("learner/step_ms", self.step_ms));
+        let timings = &self.phases.learner;
+        for (phase, ms) in [
+            ("sample", self.phases.sample_ms),
+            ("policy_evaluation", timings.policy_evaluation_ms),
+            ("e_step", timings.e_step_ms),
+            ("m_step", timings.m_step_ms),
+            ("target_update", timings.target_update_ms),
+        ] {
+            out.push(Scalar::new(format!("learner/phase_ms/{phase}"), ms));
+        }
         out.push(Scalar::new(
             "learner/learner_steps",
             self.learner_step as f64,
@@ -240,6 +272,7 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
             }
             let t0 = Instant::now();
             let batches = sample_batches(&members, &learner);
+            let sample_ms = t0.elapsed().as_secs_f64() * 1e3;
             // Actors load policies only once the learner has caught up (a population's
             // actor: with any running member, `wait_for_population_learner`), so those
             // steps always publish; `publish_period` adds publications in between.
@@ -249,6 +282,7 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
             let all_stats = learner.step_members(&batches)?;
             let step = Stepped {
                 step_ms: t0.elapsed().as_secs_f64() * 1e3,
+                sample_ms,
                 n: learner.step_count(),
                 actors_may_load,
             };
@@ -287,6 +321,8 @@ pub fn run_learner(ctx: LearnerContext) -> Result<LearnerDone, LearnerLoopError>
 /// One learner step as each member's bookkeeping needs it.
 struct Stepped {
     step_ms: f64,
+    /// The part of `step_ms` spent sampling the batches.
+    sample_ms: f64,
     /// The learner's step count after it.
     n: u64,
     /// Whether an actor may load a policy before the next step (then it is published).
@@ -392,6 +428,10 @@ fn log_step(
         policy_kl: stats.policy_kl.clone(),
         policy_step_kept: stats.policy_step_kept,
         step_ms: step.step_ms,
+        phases: StepPhases {
+            sample_ms: step.sample_ms,
+            learner: stats.timings,
+        },
         env_steps_per_second: now.env_steps.saturating_sub(previous.env_steps) as f64 / dt,
         learner_steps_per_second: step.n.saturating_sub(previous.learner_steps) as f64 / dt,
     };

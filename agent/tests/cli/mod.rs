@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use agent::env::server_process::default_python;
+use agent::runtime::learner::LearnerRecord;
 
 /// `agent <args>`, quiet.
 pub fn agent_cmd(args: &[&str]) -> Command {
@@ -55,13 +56,8 @@ pub fn learner_rows(run: &Path) -> Vec<serde_json::Value> {
         .map(|l| {
             let mut row: serde_json::Value = serde_json::from_str(l).unwrap();
             let map = row.as_object_mut().unwrap();
-            for wall in [
-                "wall_seconds",
-                "step_ms",
-                "env_steps_per_second",
-                "learner_steps_per_second",
-            ] {
-                map.remove(wall);
+            for clock in LearnerRecord::CLOCK_FIELDS {
+                map.remove(clock);
             }
             row
         })

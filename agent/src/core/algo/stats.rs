@@ -2,8 +2,10 @@
 //!
 //! Shape legend: K objectives, C learned critics.
 
+use serde::Serialize;
+
 /// Wall-clock milliseconds per phase of one step.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct PhaseTimings {
     /// Sampling, target critic on all samples, Retrace, critic update.
     pub policy_evaluation_ms: f64,
