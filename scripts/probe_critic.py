@@ -20,6 +20,10 @@ of those states, prints per learned objective (critic head):
 - `tilt`: how far the E-step's weights move the sample mean, in standard deviations
   (the norm over action dims of sum_i w_i z_i with z the centred standardised samples).
 
+Above these, the policy's standard deviation over those states and action dims (its
+median and 10%-90% range) and the median |mean action|: how much exploration noise the
+stochastic policy that the critics value carries beside the deterministic one.
+
 Each `--epsilon` is a preference of an ε-conditioned run (default: its grid's middle
 point); a fixed-ε run takes none. The critic is transcribed from
 agent/src/core/nets/critic/mod.rs (shared first layer `W_obs obs + W_act tanh(a) + b` ->
@@ -167,6 +171,10 @@ def probe(ckpt: pathlib.Path, preference: dict[str, float] | None, args: argpars
     label = ",".join(f"{k}={v}" for k, v in (preference or {}).items()) or "fixed ε"
     returns = ", ".join(f"{n} {r:.1f}" for n, r in zip(names, rewards.sum(0)))
     print(f"{label}: return {returns} over {len(rewards)} steps")
+    print(
+        f"  policy: std median {std.median():.3f} (10%-90% {std.quantile(0.1):.3f}-{std.quantile(0.9):.3f}), "
+        f"|mean action| median {mean.abs().median():.3f}"
+    )
     for c in range(q.shape[-1]):
         weights = torch.softmax(q[..., c] / eta[c], 0)
         tilt = (weights[..., None] * z).sum(0).norm(dim=-1).mean().item()
