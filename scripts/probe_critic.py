@@ -182,8 +182,8 @@ def probe(ckpt: pathlib.Path, preference: dict[str, float] | None, args: argpars
     )
     for c in range(q.shape[-1]):
         weights = torch.softmax(q[..., c] / eta[c], 0)
-        tilt = (weights[..., None] * z).sum(0).norm(dim=-1).mean().item()
         shift = (weights[..., None] * z).sum(0)
+        tilt = shift.norm(dim=-1).mean().item()
         spread = (weights[..., None] * (z - shift) ** 2).sum(0)
         print(
             f"  {names[c]}: Q(mu) {q_mean[:, c].mean():9.2f}  G {togo[:half, c].mean():9.2f}  "
