@@ -20,7 +20,12 @@ and "dmc:..." ids with a `name=`).
 With `render_mode="rgb_array"` a `RemoteEnv`'s `render()` returns the current frame, so
 gymnasium's `RecordVideo` records it. Failed calls raise `RemoteError` (or a subclass)
 carrying the gRPC code and message; only UNAVAILABLE is retried, with exponential
-backoff, and never a Step (one sent may have been applied).
+backoff, and never a Step (one sent may have been applied). No call waits forever:
+`timeout=` (seconds, default 60; None waits forever) bounds each call's wait for its
+answer, a Step's on the stream included, and a call without one in time raises
+`DeadlineExceededError` (a `TimeoutError`). A Make, Reset or Render that runs out leaves
+the session as the server has it; a Step that runs out ends the step stream, whose
+sessions the server closes, so that env must be made again.
 
 A server on another host (started with --tls-cert and --auth-token-file) is reached
 with an `https://host:port` address (or `tls_ca=`, which implies TLS), `tls_ca=` the CA
@@ -42,8 +47,10 @@ from gymnasium.vector.utils import batch_space, create_empty_array
 
 from env_server._proto.mo_env.v1 import env_pb2 as pb
 from env_server.connection import (
+    DEFAULT_TIMEOUT_S,
     Channel,
     Credentials,
+    DeadlineExceededError,
     FailedPreconditionError,
     InvalidArgumentError,
     NotFoundError,
@@ -58,6 +65,7 @@ from env_server.remote import RemoteSession, autoreset_mode, from_tensor, object
 from env_server.shared import SHIPPED_ENV_IDS, Autoreset, Objective
 
 __all__ = [  # the errors and token reader live in connection.py, the tensors in remote.py
+    "DeadlineExceededError",
     "FailedPreconditionError",
     "InvalidArgumentError",
     "NotFoundError",
@@ -85,10 +93,12 @@ _TO_GYM = {
 _FROM_GYM = {mode: autoreset for autoreset, mode in _TO_GYM.items()}
 
 
-def list_envs(address: str, **connection: Any) -> list[tuple[str, str, tuple[Objective, ...]]]:
+def list_envs(
+    address: str, *, timeout: float | None = DEFAULT_TIMEOUT_S, **connection: Any
+) -> list[tuple[str, str, tuple[Objective, ...]]]:
     """(env_id, description, objectives) for every env the server lists; `connection`
     takes the TLS and token keywords of the module doc."""
-    channel = Channel(address, credentials=Credentials(**connection))
+    channel = Channel(address, credentials=Credentials(**connection), timeout=timeout)
     try:
         response = channel.call(channel.stub.ListEnvs, pb.ListEnvsRequest())
     finally:
@@ -192,8 +202,9 @@ class RemoteVectorEnv(gymnasium.vector.VectorEnv):
     MO-Gymnasium's MORecordEpisodeStatistics, which write it (the latter counts with
     NEXT_STEP autoreset). Observations are read-only views of the received message.
 
-    num_workers >= 1 asks the server to step the instances in that many processes. The tls_*
-    and token keywords are the module doc's; other kwargs go to the env's constructor.
+    num_workers >= 1 asks the server to step the instances in that many processes. The
+    timeout, tls_* and token keywords are the module doc's; other kwargs go to the env's
+    constructor.
     """
 
     def __init__(
@@ -208,6 +219,7 @@ class RemoteVectorEnv(gymnasium.vector.VectorEnv):
         info_keys: Sequence[str] = (),
         num_workers: int = 0,
         max_message_mb: float = 64,
+        timeout: float | None = DEFAULT_TIMEOUT_S,
         tls_ca: PathLike | None = None,
         tls_client_cert: PathLike | None = None,
         tls_client_key: PathLike | None = None,
@@ -227,6 +239,7 @@ class RemoteVectorEnv(gymnasium.vector.VectorEnv):
             num_workers=num_workers,
             max_message_mb=max_message_mb,
             credentials=Credentials(tls_ca, tls_client_cert, tls_client_key, token, token_file),
+            timeout=timeout,
             kwargs=kwargs,
         )
         spec = self.session_spec = self._session.spec

@@ -9,6 +9,7 @@ import dataclasses
 import os
 import pathlib
 import queue
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -52,6 +53,15 @@ class UnauthenticatedError(RemoteError, PermissionError):
     """UNAUTHENTICATED: the server takes bearer tokens and this client's is missing or unknown."""
 
 
+class DeadlineExceededError(RemoteError, TimeoutError):
+    """DEADLINE_EXCEEDED: no answer within the client's `timeout` (a stopped, overloaded or unreachable server)."""
+
+
+DEFAULT_TIMEOUT_S = 60.0
+"""How long a call waits for its answer unless `timeout=` says otherwise: the agent's
+ceiling for a Make (docs/reliability.md, "Deadlines"), far above any one Step."""
+
+
 _ERRORS = {
     grpc.StatusCode.INVALID_ARGUMENT: InvalidArgumentError,
     grpc.StatusCode.NOT_FOUND: NotFoundError,
@@ -59,12 +69,26 @@ _ERRORS = {
     grpc.StatusCode.PERMISSION_DENIED: PermissionDeniedError,
     grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhaustedError,
     grpc.StatusCode.UNAUTHENTICATED: UnauthenticatedError,
+    grpc.StatusCode.DEADLINE_EXCEEDED: DeadlineExceededError,
 }
 
 
 def _error(exc: grpc.RpcError) -> RemoteError:
     code = exc.code()
     return _ERRORS.get(code, RemoteError)(code, exc.details() or "")
+
+
+def _no_answer(call: str, timeout: float) -> DeadlineExceededError:
+    return DeadlineExceededError(
+        grpc.StatusCode.DEADLINE_EXCEEDED, f"{call}: expected an answer within timeout={timeout:g} s, got none"
+    )
+
+
+def check_timeout(timeout: float | None) -> float | None:
+    """`timeout=` as given, or a ValueError naming what was expected."""
+    if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+        raise ValueError(f"timeout: expected seconds > 0 or None (wait forever), got {timeout!r}")
+    return timeout
 
 
 PathLike = str | os.PathLike[str]
@@ -92,7 +116,8 @@ class Credentials:
 
 
 class Channel:
-    """A channel (plain or TLS), its stub, the token and the retry rule (UNAVAILABLE only)."""
+    """A channel (plain or TLS), its stub, the token, the retry rule (UNAVAILABLE only) and
+    each call's deadline (`timeout` seconds; None waits forever)."""
 
     def __init__(
         self,
@@ -101,7 +126,9 @@ class Channel:
         retries: int = 5,
         *,
         credentials: Credentials = Credentials(),
+        timeout: float | None = DEFAULT_TIMEOUT_S,
     ) -> None:
+        self.timeout = check_timeout(timeout)
         c = credentials
         size = int(max_message_mb * 1024 * 1024)
         options = [("grpc.max_send_message_length", size), ("grpc.max_receive_message_length", size)]
@@ -137,8 +164,10 @@ class Channel:
         delay = 0.05
         for attempt in range(self.retries + 1):
             try:
-                return method(request, metadata=self.metadata)
+                return method(request, metadata=self.metadata, timeout=self.timeout)
             except grpc.RpcError as exc:
+                if exc.code() == grpc.StatusCode.DEADLINE_EXCEEDED and self.timeout is not None:
+                    raise _no_answer(type(request).__name__.removesuffix("Request"), self.timeout) from None
                 if exc.code() != grpc.StatusCode.UNAVAILABLE or attempt == self.retries:
                     raise _error(exc) from None
             time.sleep(delay)
@@ -147,7 +176,7 @@ class Channel:
 
     def open_stream(self, method: Callable[..., Any]) -> Stream:
         """A bidirectional stream on `method` (e.g. stub.StepStream), one response per request."""
-        return Stream(method, self.metadata)
+        return Stream(method, self.metadata, self.timeout)
 
     def close(self) -> None:
         self.channel.close()
@@ -156,27 +185,59 @@ class Channel:
 class Stream:
     """A bidirectional stream stepped in lockstep: `call` sends one request and waits for its
     response. Not retried, since a request sent may have been applied: after a failed call
-    the stream is closed (`open` is False), and the caller opens a new one."""
+    the stream is closed (`open` is False), and the caller opens a new one.
 
-    def __init__(self, method: Callable[..., Any], metadata: tuple[tuple[str, str], ...]) -> None:
+    grpc's deadline covers a whole stream, which lives for many steps; each call's own
+    deadline is kept by a watchdog thread that cancels the stream when an answer is
+    `timeout` seconds late (to within a tenth of it), so a call costs two clock reads.
+    """
+
+    def __init__(
+        self, method: Callable[..., Any], metadata: tuple[tuple[str, str], ...], timeout: float | None
+    ) -> None:
         # grpc's sync API reads requests from an iterator on its own thread; a queue feeds it,
         # and None ends the iterator, which half-closes the stream.
         self._requests: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._responses = method(iter(self._requests.get, None), metadata=metadata)
         self.open = True
+        self._timeout = timeout
+        self._due: float | None = None  # when the call in flight must have its answer
+        self._expired = False  # the watchdog cancelled the stream
+        self._lock = threading.Lock()
+        if timeout is not None:
+            threading.Thread(target=self._watch, name="env_server stream deadline", daemon=True).start()
+
+    def _watch(self) -> None:
+        assert self._timeout is not None
+        while self.open:
+            time.sleep(min(0.5, self._timeout / 10))
+            with self._lock:
+                if self._due is not None and time.monotonic() > self._due:
+                    self._expired = True
+                    self._responses.cancel()
+                    return
 
     def call(self, request: Any) -> Any:
         if not self.open:
             raise RuntimeError("this stream failed or was closed; open a new one")
         self._requests.put(request)
+        if self._timeout is not None:
+            self._due = time.monotonic() + self._timeout
         try:
             return next(self._responses)
         except grpc.RpcError as exc:
             self.close()
+            if self._expired:
+                raise _no_answer(type(request).__name__.removesuffix("Request"), self._timeout) from None
             raise _error(exc) from None
         except StopIteration:
             self.close()
             raise RemoteError(grpc.StatusCode.UNKNOWN, "the server ended the stream without answering") from None
+        finally:
+            with self._lock:
+                self._due = None
+                if self._expired:  # cancelled just as the answer came: the next call takes a new stream
+                    self.close()
 
     def close(self) -> None:
         if self.open:

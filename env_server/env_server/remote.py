@@ -120,9 +120,10 @@ class RemoteSession:
         num_workers: int,
         max_message_mb: float,
         credentials: Credentials,
+        timeout: float | None,
         kwargs: dict[str, Any],
     ) -> None:
-        self._channel = Channel(address, max_message_mb, credentials=credentials)
+        self._channel = Channel(address, max_message_mb, credentials=credentials, timeout=timeout)
         request = pb.MakeRequest(
             env_id=env_id,
             num_envs=num_envs,

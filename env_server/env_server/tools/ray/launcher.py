@@ -8,6 +8,7 @@ they do are in options.py.
 
 from __future__ import annotations
 
+import faulthandler
 import ipaddress
 import logging
 import os
@@ -18,11 +19,14 @@ import tempfile
 import time
 from typing import Any
 
-from env_server.tools.ray import sweep
+from env_server.tools.ray import sweep, watchdog
 from env_server.tools.ray.fleet import Fleet, LaunchError, log
 from env_server.tools.ray.options import NAMESPACE, Options, parse, ray_address
 
 _LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+STOP_TIMEOUT_S = 60.0
+"""How long COMMAND may take to exit after SIGTERM, and the servers and Ray to stop."""
 
 
 def _is_loopback(address: str) -> bool:
@@ -83,8 +87,35 @@ def _start_ray(opts: Options) -> Any:
             num_cpus=max(1, int(-(-(opts.args.num_servers * opts.args.cpus_per_server + shards) // 1))),
             object_store_memory=128 * 1024 * 1024,
         )
-    ray.init(address=address, **kwargs)
+    _init(ray, address, kwargs, opts.args.ray_start_timeout)
     return ray
+
+
+def _init(ray: Any, address: str, kwargs: dict[str, Any], timeout: float) -> None:
+    """`ray.init`, bounded: a local Ray that fails or hangs is started again (watchdog.py)."""
+    local = address == "local"
+    attempt = watchdog.attempt()
+    started = time.monotonic()
+    log(f"starting a local Ray with {kwargs['num_cpus']} CPUs" if local else f"connecting to Ray at {address}")
+
+    def stuck() -> None:
+        what = "a local Ray up" if local else f"to connect to Ray at {address}"
+        why = f"--ray-start-timeout: expected {what} within {timeout:g} s, got no answer"
+        if local:
+            watchdog.restart_or_exit(log, why)
+        log(why)
+        os._exit(2)
+
+    with watchdog.Deadline(timeout, stuck):
+        try:
+            ray.init(address=address, **kwargs)
+        except Exception as exc:
+            if not local:
+                raise LaunchError(f"--address: expected a Ray cluster at {address}, got {type(exc).__name__}: {exc}")
+            watchdog.restart_or_exit(log, f"the local Ray failed to start: {type(exc).__name__}: {exc}")
+    os.environ.pop(watchdog.ATTEMPT_ENV, None)  # COMMAND and the servers start afresh
+    again = f" (attempt {attempt})" if attempt > 1 else ""
+    log(f"Ray {'up' if local else 'connected'} in {time.monotonic() - started:.1f} s{again}")
 
 
 def _start_actors(ray: Any, opts: Options) -> list[Any]:
@@ -121,52 +152,87 @@ def run(opts: Options, signals: _Signals) -> int:
     ray = _start_ray(opts)
     signals.install()
     fleet = None
+    code = 2  # what main reports if a LaunchError (or a crash) ends the run early
     try:
         fleet = Fleet(ray, _start_actors(ray, opts), path)
-        deadline = started + opts.args.startup_timeout
-        while not fleet.all_up():
-            if signals.received is not None:
-                return 128 + signals.received
-            if time.monotonic() > deadline:
-                down = [s.index for s in fleet.slots if s.address is None]
-                raise LaunchError(
-                    f"--startup-timeout: expected {opts.args.num_servers} servers listening within "
-                    f"{opts.args.startup_timeout:g} s, got servers {down} still starting (too few CPUs in the "
-                    f"cluster for --cpus-per-server {opts.args.cpus_per_server:g}?)"
-                )
-            fleet.poll(0.5)
-        log(f"{opts.args.num_servers} servers up in {time.monotonic() - started:.1f} s; addresses in {path}")
-        if not opts.command:
-            while signals.received is None:
-                fleet.poll(0.5)
-            return 0
-        if opts.args.sweep_shards is not None:
-            return _run_sweep(ray, fleet, opts, signals)
-        command = [*opts.command, "--server", f"file:{path}"]
-        try:
-            child = subprocess.Popen(
-                command, env={**os.environ, "ENV_SERVER_ADDRESS_FILE": path}, start_new_session=True
-            )
-        except OSError as exc:
-            raise LaunchError(f"COMMAND: expected a program to run, got {command[0]!r} ({exc.strerror})") from None
-        signals.child = child
-        while child.poll() is None:
-            fleet.poll(0.5)
-        # A COMMAND killed by signal S (Popen's -S) exits the launcher the way a shell reports it: 128 + S.
-        return 128 - child.returncode if child.returncode < 0 else child.returncode
+        code = _serve(ray, fleet, opts, signals, started)
+        return code
     finally:
-        if signals.child is not None and signals.child.poll() is None:
-            signals.child.terminate()
-            signals.child.wait()
+        _stop(ray, fleet, signals, code)
+        if own_file:
+            _remove(path)
+
+
+def _serve(ray: Any, fleet: Fleet, opts: Options, signals: _Signals, started: float) -> int:
+    """Wait for every server, then run COMMAND (its shards, or nothing until a signal); the exit code."""
+    deadline = started + opts.args.startup_timeout
+    while not fleet.all_up():
+        if signals.received is not None:
+            return 128 + signals.received
+        if time.monotonic() > deadline:
+            down = [s.index for s in fleet.slots if s.address is None]
+            raise LaunchError(
+                f"--startup-timeout: expected {opts.args.num_servers} servers listening within "
+                f"{opts.args.startup_timeout:g} s, got servers {down} still starting (too few CPUs in the "
+                f"cluster for --cpus-per-server {opts.args.cpus_per_server:g}?)"
+            )
+        fleet.poll(0.5)
+    log(f"{opts.args.num_servers} servers up in {time.monotonic() - started:.1f} s; addresses in {fleet.path}")
+    if not opts.command:
+        while signals.received is None:
+            fleet.poll(0.5)
+        return 0
+    if opts.args.sweep_shards is not None:
+        return _run_sweep(ray, fleet, opts, signals)
+    command = [*opts.command, "--server", f"file:{fleet.path}"]
+    try:
+        child = subprocess.Popen(
+            command, env={**os.environ, "ENV_SERVER_ADDRESS_FILE": fleet.path}, start_new_session=True
+        )
+    except OSError as exc:
+        raise LaunchError(f"COMMAND: expected a program to run, got {command[0]!r} ({exc.strerror})") from None
+    signals.child = child
+    while child.poll() is None:
+        fleet.poll(0.5)
+    # A COMMAND killed by signal S (Popen's -S) exits the launcher the way a shell reports it: 128 + S.
+    return 128 - child.returncode if child.returncode < 0 else child.returncode
+
+
+def _stop(ray: Any, fleet: Fleet | None, signals: _Signals, code: int) -> None:
+    """Stop COMMAND (if it still runs), the servers and Ray, each within STOP_TIMEOUT_S.
+
+    COMMAND gets SIGTERM and the time to write its checkpoint; `ray.shutdown` takes no
+    timeout, so a Ray that does not stop gets its processes killed and the launcher
+    exits with `code` anyway rather than wait for it.
+    """
+    child = signals.child
+    if child is not None and child.poll() is None:
+        child.terminate()
+        try:
+            child.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            log(f"COMMAND (pid {child.pid}) still running {STOP_TIMEOUT_S:g} s after SIGTERM; killing it")
+            child.kill()
+            child.wait()
+
+    def stuck() -> None:
+        killed = watchdog.kill_descendants()
+        log(f"Ray did not stop within {STOP_TIMEOUT_S:g} s; {killed} processes left killed, exiting with code {code}")
+        os._exit(code)
+
+    with watchdog.Deadline(STOP_TIMEOUT_S, stuck):
         if fleet is not None:
             fleet.stop()
         ray.shutdown()
-        if own_file:
-            for p in (path, os.path.dirname(path)):
-                try:
-                    os.remove(p) if p == path else os.rmdir(p)
-                except OSError:
-                    pass
+
+
+def _remove(path: str) -> None:
+    """The launcher's own address file and its temporary folder."""
+    for p in (path, os.path.dirname(path)):
+        try:
+            os.remove(p) if p == path else os.rmdir(p)
+        except OSError:
+            pass
 
 
 def _run_sweep(ray: Any, fleet: Fleet, opts: Options, signals: _Signals) -> int:
@@ -224,6 +290,8 @@ def _run_sweep(ray: Any, fleet: Fleet, opts: Options, signals: _Signals) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     opts = parse(sys.argv[1:] if argv is None else argv)
+    # `kill -USR1 PID` prints every thread's stack: where a launcher that seems stuck waits.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     signals = _Signals()
     try:
         return run(opts, signals)

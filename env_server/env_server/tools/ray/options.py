@@ -72,6 +72,15 @@ def _parser() -> argparse.ArgumentParser:
         help="seconds to wait for all N servers to listen before giving up (default 300)",
     )
     p.add_argument(
+        "--ray-start-timeout",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="seconds `ray.init` may take to start a local Ray (or connect to --address) before the launcher "
+        "gives up; a local Ray that fails or takes longer is killed and started again, 3 times in all "
+        "(default 60; it takes 5-6 s on two busy cores)",
+    )
+    p.add_argument(
         "--sweep-shards",
         type=int,
         metavar="S",
@@ -117,6 +126,9 @@ def parse(argv: list[str]) -> Options:
     command = argv[split + 1 :]
     if args.num_servers < 1:
         parser.error(f"--num-servers: expected >= 1, got {args.num_servers}")
+    for flag, value in (("--startup-timeout", args.startup_timeout), ("--ray-start-timeout", args.ray_start_timeout)):
+        if not value > 0:  # also refuses nan
+            parser.error(f"{flag}: expected seconds > 0, got {value:g}")
     if args.cpus_per_server < 0:
         parser.error(f"--cpus-per-server: expected >= 0, got {args.cpus_per_server}")
     try:
