@@ -25,6 +25,8 @@ ATTEMPT_ENV = "ENV_SERVER_RAY_START_ATTEMPT"
 ATTEMPTS = 3
 """Starts of a local Ray before the launcher gives up (exit code 2)."""
 
+_RESTART = threading.Lock()
+
 
 class Deadline:
     """`with Deadline(seconds, on_expiry):` calls `on_expiry()` on a watchdog thread if the
@@ -98,6 +100,7 @@ def restart_or_exit(log: Callable[[str], None], why: str) -> None:
     Never returns: `exec` replaces this process (its pid, stdout and stderr stay, so a
     caller waiting on it sees one launcher), or `_exit(2)` after the last attempt.
     """
+    _RESTART.acquire()  # a second caller (the main thread, once the kill wakes it) waits for the exec
     n = attempt()
     killed = kill_descendants()
     if n >= ATTEMPTS:
