@@ -82,7 +82,7 @@ def test_make_and_list_envs_on_a_server_that_never_answers_give_up() -> None:
         assert "ListEnvs: expected an answer within timeout=1 s" in str(err), err
 
 
-@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), "60"])
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf"), "60"])
 def test_a_bad_timeout_is_refused_naming_it(bad) -> None:
-    with pytest.raises(ValueError, match=r"timeout: expected seconds > 0 or None \(wait forever\), got"):
+    with pytest.raises(ValueError, match=r"timeout: expected finite seconds > 0 or None \(wait forever\), got"):
         RemoteEnv("127.0.0.1:1", "dst", timeout=bad)

@@ -18,6 +18,15 @@ from env_server.tools.ray.options import parse
     ("argv", "message"),
     [
         (["--num-servers", "0"], "--num-servers: expected >= 1, got 0"),
+        (["--num-servers", "1", "--startup-timeout", "0"], "--startup-timeout: expected finite seconds > 0, got 0"),
+        (
+            ["--num-servers", "1", "--ray-start-timeout", "inf"],
+            "--ray-start-timeout: expected finite seconds > 0, got inf",
+        ),
+        (
+            ["--num-servers", "1", "--ray-start-timeout", "nan"],
+            "--ray-start-timeout: expected finite seconds > 0, got nan",
+        ),
         (["--num-servers", "2", "--server-args", "--port 5000"], "other than --host, --port and --list"),
         (["--num-servers", "2", "--server-args", "'unclosed"], "--server-args: expected a shell-quoted string"),
         (["--num-servers", "2", "--"], "expected a COMMAND after '--'"),

@@ -16,6 +16,7 @@ and resumed, when a node is lost), then merged into the sweep's front (see sweep
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shlex
 from dataclasses import dataclass
@@ -127,8 +128,8 @@ def parse(argv: list[str]) -> Options:
     if args.num_servers < 1:
         parser.error(f"--num-servers: expected >= 1, got {args.num_servers}")
     for flag, value in (("--startup-timeout", args.startup_timeout), ("--ray-start-timeout", args.ray_start_timeout)):
-        if not value > 0:  # also refuses nan
-            parser.error(f"{flag}: expected seconds > 0, got {value:g}")
+        if not 0 < value < math.inf:  # also refuses nan
+            parser.error(f"{flag}: expected finite seconds > 0, got {value:g}")
     if args.cpus_per_server < 0:
         parser.error(f"--cpus-per-server: expected >= 0, got {args.cpus_per_server}")
     try:
