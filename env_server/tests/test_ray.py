@@ -116,6 +116,13 @@ class Launcher:
             t.join(5)
         return code
 
+    def finish(self, timeout: float) -> int:
+        """`wait(timeout)`, and the launcher stopped whatever happens."""
+        try:
+            return self.wait(timeout)
+        finally:
+            self.stop()
+
     def output(self) -> str:
         return "\n".join(self.lines)
 
@@ -179,14 +186,11 @@ COMMAND = textwrap.dedent(
 
 def test_a_local_ray_runs_the_command_on_the_servers_and_returns_its_exit_code():
     launcher = Launcher("--num-servers", "2", "--", sys.executable, "-c", COMMAND)
-    try:
-        # A hang guard, not a speed check: starting a local Ray took over 120 s once
-        # while the 2-core machine ran another test suite beside it (issue 36), and a
-        # CI run waited 300 s on it. The launcher's own bounds (3 starts of Ray of
-        # --ray-start-timeout 60 s, then --startup-timeout 300 s) end within this.
-        code = launcher.wait(600)
-    finally:
-        launcher.stop()
+    # A hang guard, not a speed check: starting a local Ray took over 120 s once
+    # while the 2-core machine ran another test suite beside it (issue 36), and a
+    # CI run waited 300 s on it. The launcher's own bounds (3 starts of Ray of
+    # --ray-start-timeout 60 s, then --startup-timeout 300 s) end within this.
+    code = launcher.finish(600)
     assert code == 7, launcher.output()
     assert launcher.stdout == ["stepped 2 servers"], launcher.output()
     pids = [pid for _, pid, _ in launcher.servers().values()]
@@ -281,10 +285,7 @@ def test_a_server_that_cannot_start_stops_the_launcher_with_its_error(cluster):
     launcher = Launcher(
         "--num-servers", "1", "--address", cluster.address, "--name", "bad", "--server-args", "--max-sessions 0"
     )
-    try:
-        code = launcher.wait(90)
-    finally:
-        launcher.stop()
+    code = launcher.finish(90)
     assert code == 2, launcher.output()
     assert "server 0 could not start" in launcher.output()
     assert "--max-sessions >= 1" in launcher.output()

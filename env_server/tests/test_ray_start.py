@@ -87,10 +87,7 @@ EXIT_7 = [sys.executable, "-c", "import sys; sys.exit(7)"]
 def test_a_local_ray_that_fails_to_start_is_started_again(tmp_path, mode):
     # 20 s: the real ray.init took 5-6 s with four busy loops on this machine's 2 cores.
     launcher = launcher_with_fault(tmp_path, mode, "--num-servers", "1", "--ray-start-timeout", "20", "--", *EXIT_7)
-    try:
-        code = launcher.wait(400)
-    finally:
-        launcher.stop()
+    code = launcher.finish(400)
     out = launcher.output()
     assert code == 7, out
     why = (
@@ -108,10 +105,7 @@ def test_a_local_ray_that_fails_to_start_is_started_again(tmp_path, mode):
 
 def test_a_local_ray_that_never_starts_ends_the_launcher_after_three_tries(tmp_path):
     launcher = launcher_with_fault(tmp_path, "raise-always", "--num-servers", "1", "--", *EXIT_7)
-    try:
-        code = launcher.wait(120)
-    finally:
-        launcher.stop()
+    code = launcher.finish(120)
     out = launcher.output()
     assert code == 2, out
     for n in (1, 2):
