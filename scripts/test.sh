@@ -2,8 +2,9 @@
 # Set up (scripts/setup.sh), check formatting and lints (cargo fmt, clippy with
 # warnings as errors, ruff) and the docs (scripts/docs.sh: the MkDocs site built
 # strictly, the paths it names), and run every test: the benchmark scripts' Python
-# tests, then env_server's Python tests beside the Rust unit, golden and end-to-end
-# tests (which start real env_server processes on 127.0.0.1 with OS-chosen ports).
+# tests, env_server's Ray tests alone, then the rest of env_server's Python tests beside
+# the Rust unit, golden and end-to-end tests (which start real env_server processes on
+# 127.0.0.1 with OS-chosen ports).
 # Needs no GPU and no network beyond the package registries used by setup.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -27,19 +28,21 @@ cargo test --locked --workspace --no-run
 echo "==> the benchmark scripts' Python tests"
 .venv/bin/python -m pytest -q scripts/tests
 
-# env_server's Python suite runs beside the Rust tests. It waits on servers and
-# subprocesses more than it computes (170 CPU-s in 250 s), and most Rust test binaries
-# keep one core busy (1,180 CPU-s in 790 s): one after the other they left a core idle
-# for about a third of the suite. Background commands of a script ignore SIGINT, so
-# pytest restores Python's handler itself: a Ctrl-C then reaches it and its fixtures
-# stop their servers.
+echo "==> env_server's Ray tests, alone (pytest -m serial)"
+(cd env_server && ../.venv/bin/python -m pytest -q -m serial tests)
+
+# The rest of env_server's Python suite runs beside the Rust tests. It waits on servers
+# and subprocesses more than it computes (the whole suite: 170 CPU-s in 250 s), and most
+# Rust test binaries keep one core busy (1,180 CPU-s in 790 s): one after the other they
+# left a core idle. Background commands of a script ignore SIGINT, so pytest restores
+# Python's handler itself: a Ctrl-C then reaches it and its fixtures stop their servers.
 python_log=$(mktemp -t env-server-tests.XXXXXX)
 (cd env_server && exec ../.venv/bin/python -c 'import signal, sys, pytest
 signal.signal(signal.SIGINT, signal.default_int_handler)
-sys.exit(pytest.main(["-q", "tests"]))') >"$python_log" 2>&1 &
+sys.exit(pytest.main(["-q", "-m", "not serial", "tests"]))') >"$python_log" 2>&1 &
 python_pid=$!
 trap 'kill -INT "$python_pid" 2>/dev/null || true' EXIT
-echo "==> env_server's Python tests, in the background (their output: $python_log)"
+echo "==> env_server's other Python tests, in the background (their output: $python_log)"
 
 echo "==> Rust tests (unit, golden, end-to-end)"
 rust_status=0
@@ -48,7 +51,7 @@ cargo test --locked --workspace || rust_status=$?
 python_status=0
 wait "$python_pid" || python_status=$?
 trap - EXIT
-echo "==> env_server's Python tests"
+echo "==> env_server's other Python tests"
 cat "$python_log"
 if [ "$rust_status" -ne 0 ] || [ "$python_status" -ne 0 ]; then
   echo "error: Rust tests exited $rust_status, env_server's Python tests $python_status" >&2

@@ -37,6 +37,12 @@ from conftest import read_addresses  # noqa: E402
 from env_server.client import RemoteEnv  # noqa: E402
 from env_server.tools.ray import sweep  # noqa: E402
 
+# Alone on the machine: scripts/test.sh runs `-m serial` before the Rust tests and the rest
+# of this suite. A Ray's raylets must register within Ray's fixed 30 s, and the sweep test
+# bounds training progress in wall seconds; run beside the Rust tests on the 2 cores (and
+# a training run), the sweep test's 120 s wait for a shard's checkpoint ran out.
+pytestmark = pytest.mark.serial
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 UP = re.compile(r"server (\d+) (?:up|back) at (\S+) \(pid (\d+), node (\w+)\)")

@@ -16,6 +16,9 @@ import textwrap
 import pytest
 from test_ray import Launcher
 
+# Alone on the machine, as test_ray.py: its 20 s bound is on a real Ray's start.
+pytestmark = pytest.mark.serial
+
 SITECUSTOMIZE = textwrap.dedent(
     """
     import importlib.abc, importlib.machinery, os, sys, time
