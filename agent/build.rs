@@ -42,7 +42,11 @@ fn torch_lib_dir() -> Option<PathBuf> {
 }
 
 fn main() {
-    println!("cargo:rerun-if-changed=build.rs");
+    // No `rerun-if-changed=build.rs`: the tests crate runs this script too
+    // (tests/Cargo.toml), and that path, relative to its package, names a file that
+    // does not exist, which cargo reads as changed on every build: each `cargo test`
+    // recompiled the crate and its test binaries. Cargo reruns a script whose source
+    // changed anyway, and the lines below keep it from rerunning on any other file.
     for var in [
         "LIBTORCH",
         "LIBTORCH_LIB",
