@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Set up (scripts/setup.sh), check formatting and lints (cargo fmt, clippy with
-# warnings as errors, ruff) and the docs (scripts/docs.sh: the MkDocs site built
-# strictly, the paths it names), and run every test: the benchmark scripts' Python
+# Set up (scripts/setup.sh), check formatting and lints (cargo fmt, ruff, clippy with
+# warnings as errors) and the docs (scripts/docs.sh: the MkDocs site built strictly,
+# the paths it names), and run every test: the benchmark scripts' Python
 # tests, env_server's Ray tests alone, then the rest of env_server's Python tests beside
 # the Rust unit, golden and end-to-end tests (which start real env_server processes on
 # 127.0.0.1 with OS-chosen ports).
@@ -12,18 +12,32 @@ scripts/setup.sh
 # MUJOCO_GL stays as the caller set it: unset, env_server picks a headless OpenGL backend
 # (EGL or OSMesa, which setup.sh installs) so the rendering tests really render.
 
-echo "==> format and lints (cargo fmt, ruff, docs, clippy)"
+echo "==> format and lints (cargo fmt, ruff, docs)"
 cargo fmt --all --check
 .venv/bin/ruff format --check .
 .venv/bin/ruff check .
 scripts/docs.sh
-cargo clippy --locked --workspace --all-targets -- -D warnings
 
-echo "==> the Rust tests' build, with the agent binary (test_ray.py's sweep test runs it)"
-# One build for both: `cargo build -p agent` would resolve features for the agent
-# alone, and the workspace's test build would then compile tonic, rustls, tch and the
-# agent a second time with the workspace's features.
-cargo test --locked --workspace --no-run
+echo "==> the Rust tests' build, with the agent binary (test_ray.py's sweep test runs it), linted by clippy"
+# Clippy lints while the test build compiles. `cargo clippy` is `cargo check` with
+# clippy-driver (rustc plus clippy's lints) as the workspace members' compiler; made the
+# compiler of this build, it lints our crates as it compiles them, and the dependencies
+# are compiled once instead of also checked by a separate cold `cargo clippy`. Same
+# checks as `cargo clippy --workspace --all-targets -- -D warnings`: every target
+# (benches and env_server/native included), warnings as errors (CLIPPY_ARGS is how
+# cargo-clippy hands `-D warnings` to the driver). Cargo fingerprints the wrapper, so the
+# variables stay exported for `cargo test` below, which then compiles nothing.
+# One build for the tests and the agent binary: `cargo build -p agent` would resolve
+# features for the agent alone, and the workspace's test build would then compile
+# tonic, rustls, tch and the agent a second time with the workspace's features.
+clippy_driver="$(rustc --print sysroot)/bin/clippy-driver"
+[ -x "$clippy_driver" ] || clippy_driver=$(command -v clippy-driver) || {
+  echo "error: no clippy-driver in $(rustc --print sysroot)/bin or on PATH: rustup component add clippy" >&2
+  exit 1
+}
+export RUSTC_WORKSPACE_WRAPPER="$clippy_driver"
+export CLIPPY_ARGS="-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__"
+cargo test --locked --workspace --all-targets --no-run
 
 echo "==> the benchmark scripts' Python tests"
 .venv/bin/python -m pytest -q scripts/tests
