@@ -14,6 +14,7 @@ import signal
 import socket
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,7 +28,14 @@ SLACK = 10.0
 
 @contextlib.contextmanager
 def stopped(pid: int) -> Iterator[None]:
+    # kill() returns before the signal has stopped the process: on a loaded machine a
+    # call sent at once could still be answered (seen once beside the Rust tests).
     os.kill(pid, signal.SIGSTOP)
+    deadline = time.monotonic() + 10
+    stat = Path(f"/proc/{pid}/stat")
+    while stat.read_text().rsplit(")", 1)[1].split()[0] != "T":
+        assert time.monotonic() < deadline, f"pid {pid} not stopped 10 s after SIGSTOP"
+        time.sleep(0.005)
     try:
         yield
     finally:
