@@ -111,3 +111,9 @@ def read_addresses(path: str) -> list[str]:
     except FileNotFoundError:
         return []
     return [line for line in lines if line and not line.startswith("#")]
+
+
+def proc_stat(pid: int | str) -> list[str]:
+    """The fields of /proc/PID/stat after the command name: state, ppid, ..."""
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()

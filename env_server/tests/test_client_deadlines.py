@@ -14,11 +14,10 @@ import signal
 import socket
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import FRONTS, server_process
+from conftest import FRONTS, proc_stat, server_process
 
 from env_server.client import DeadlineExceededError, RemoteEnv, RemoteVectorEnv, list_envs
 
@@ -32,8 +31,7 @@ def stopped(pid: int) -> Iterator[None]:
     # call sent at once could still be answered (seen once beside the Rust tests).
     os.kill(pid, signal.SIGSTOP)
     deadline = time.monotonic() + 10
-    stat = Path(f"/proc/{pid}/stat")
-    while stat.read_text().rsplit(")", 1)[1].split()[0] != "T":
+    while proc_stat(pid)[0] != "T":
         assert time.monotonic() < deadline, f"pid {pid} not stopped 10 s after SIGSTOP"
         time.sleep(0.005)
     try:

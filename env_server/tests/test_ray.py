@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from conftest import read_addresses  # noqa: E402
+from conftest import proc_stat, read_addresses  # noqa: E402
 
 from env_server.client import RemoteEnv  # noqa: E402
 from env_server.tools.ray import sweep  # noqa: E402
@@ -154,12 +154,6 @@ def ray_log_tails(lines: int = 30) -> str:
             tail = [f"({exc})\n"]
         out.append(f"--- {logs}/{name}, last {lines} lines:\n{''.join(tail)}")
     return "".join(out)
-
-
-def proc_stat(pid: int | str) -> list[str]:
-    """The fields of /proc/PID/stat after the command name: state, ppid, ..."""
-    with open(f"/proc/{pid}/stat") as f:
-        return f.read().rsplit(")", 1)[1].split()
 
 
 def pid_alive(pid: int) -> bool:
