@@ -35,7 +35,8 @@ agent/src/core/nets/critic/mod.rs (shared first layer `W_obs obs + W_act tanh(a)
 LayerNorm -> tanh, further shared layers with ELU, per-objective heads Linear -> ELU ->
 Linear; with `critic_preference = "every_layer"` the preference features also enter
 every layer after the first) and reads `critic/critic.*` of params.safetensors; mlp
-policies with continuous actions only.
+policies with continuous actions only. agent/tests/python_policy.rs checks that this
+transcription gives the agent's own Q (`Learner::q_values`) on trained checkpoints.
 """
 
 from __future__ import annotations

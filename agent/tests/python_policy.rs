@@ -8,7 +8,11 @@
 //! mocap torso (encoder and latent) on an untrained learner's checkpoint, actions only;
 //! and an ε-conditioned pendulum policy at a preference off its training grid, its
 //! features carried to every layer (`network.policy_preference = "every_layer"`, and
-//! `critic_preference` for the critics it trains with).
+//! `critic_preference` for the critics it trains with). On the trained Gaussian runs,
+//! `scripts/probe_critic.py`'s transcription of the Q critics must also give the
+//! agent's Q (`Learner::q_values`) for fixed observations and actions, through
+//! `agent/tests/python_critic.py` (the conditioned run's critics carry their features
+//! to every layer, the probe's most intricate path).
 //!
 //! No learning bar: both sides must agree on whatever weights a short run ends with.
 //! One tolerance, `FLOAT_NOISE` (1e-5), bounds the actions' difference and each
@@ -33,12 +37,14 @@ const FLOAT_NOISE: f64 = 1e-5;
 use std::path::Path;
 use std::process::Command;
 
+use agent::core::algo::Learner;
+use agent::core::nets::ActionKind;
 use agent::env::server_process::{LocalServer, ServerOptions};
-use agent::runtime::checkpoint::run::{RunProgress, write_run_checkpoint};
+use agent::runtime::checkpoint::run::{RunProgress, latest_checkpoint, write_run_checkpoint};
 use agent::runtime::run_config::TrainConfig;
 use agent::runtime::train::{TrainOptions, train};
 use cli::{python_json, succeeds};
-use tch::Tensor;
+use tch::{Device, Tensor};
 
 /// `n` observations of `dim` values spread over [-scale, scale] (no two rows alike), so
 /// the network's tanh, LayerNorm and clipping see more than one regime.
@@ -98,6 +104,7 @@ async fn agent_and_python_agree(
         diff <= FLOAT_NOISE,
         "Python's actions differ from the agent's by {diff}"
     );
+    let critic_diff = critics_agree(&run);
 
     let report = agent_eval(&run, &address, episodes, epsilon, &dir.join("eval.json"));
     let episodes_agent = report["episodes"].as_array().unwrap();
@@ -134,7 +141,8 @@ async fn agent_and_python_agree(
         &format!("{env_id} {}", epsilon.unwrap_or("")),
         &format!(
             "action diff {diff:.1e} return diff {largest_return_diff:.1e} \
-             (relative {largest_relative_diff:.1e})"
+             (relative {largest_relative_diff:.1e}) critic diff {}",
+            critic_diff.map_or("none (discrete)".into(), |d| format!("{d:.1e}"))
         ),
     );
 }
@@ -205,6 +213,66 @@ async fn a_state_independent_std_policy_in_pytorch_acts_and_returns_as_the_agent
     let std = r#"learner.network.policy_std="state_independent""#;
     let cfg = short_pendulum("pendulum.toml", runs.path(), &[std]);
     agent_and_python_agree(cfg, &server, &observations(64, 3, 8.0), "npy", None).await;
+}
+
+/// `scripts/probe_critic.py`'s transcription of the Q critics gives the agent's Q
+/// (`Learner::q_values`) on `run`'s latest checkpoint, within `FLOAT_NOISE` of
+/// max(1, the head's largest |Q| over the inputs): at observations of the learner's
+/// input width (a conditioned run's feature columns take any values here, since both
+/// sides must agree on any input) and actions past the bounds (the critics see tanh of
+/// the action). Continuous actions only, as the probe; returns the largest relative
+/// difference.
+///
+/// Relative to the head's scale, not to each Q: float32 rounding in the layers' sums
+/// follows the size of the values summed, and measured per Q (over max(1, |Q|)) seed
+/// 2's conditioned run differed by 5.7e-6 at a Q near 2.7 where the head reached 155,
+/// one float32 step at that scale (1.5e-5). Seeds 0-5 (2026-12-02, the four Gaussian
+/// runs each): 8.1e-8 to 1.9e-7 of the head's scale. A transcription with ReLU for
+/// the heads' ELU failed by 0.056-0.087 (all three Gaussian runs).
+fn critics_agree(run: &Path) -> Option<f64> {
+    let (checkpoint, _) = latest_checkpoint(run).unwrap();
+    let learner = Learner::load_checkpoint(&checkpoint, Device::Cpu).unwrap();
+    let ActionKind::Continuous { dim } = learner.dims().action else {
+        return None;
+    };
+    let (n, m, width) = (32, 5, learner.dims().obs_dim as usize);
+    let obs = observations(n, width, 3.0);
+    let actions: Vec<Vec<Vec<f32>>> = (0..m)
+        .map(|k| {
+            let row = |i: usize| -> Vec<f32> {
+                (0..dim as usize)
+                    .map(|j| {
+                        (1.5 * (0.7 * k as f64 + 1.3 * i as f64 + 0.4 * j as f64).sin()) as f32
+                    })
+                    .collect()
+            };
+            (0..n).map(row).collect()
+        })
+        .collect();
+    let flat = |rows: &[Vec<f32>]| rows.iter().flatten().copied().collect::<Vec<f32>>();
+    let obs_t = Tensor::from_slice(&flat(&obs)).view([1, n as i64, width as i64]);
+    let actions_t = Tensor::from_slice(&actions.iter().flat_map(|a| flat(a)).collect::<Vec<_>>())
+        .view([1, m as i64, n as i64, dim]);
+    let q = learner
+        .q_values(&obs_t, &actions_t)
+        .expect("MO-MPO has Q critics");
+    let heads = q.size()[3] as usize;
+    let q: Vec<f32> = Vec::try_from(q.flatten(0, -1)).unwrap();
+    let q: Vec<Vec<Vec<f32>>> = q
+        .chunks(n * heads)
+        .map(|per_action| per_action.chunks(heads).map(<[f32]>::to_vec).collect())
+        .collect();
+    let inputs = run.parent().unwrap().join("critic_inputs.json");
+    let json = serde_json::json!({ "obs": obs, "actions": actions, "q": q });
+    std::fs::write(&inputs, json.to_string()).unwrap();
+    let python = python_json("python_critic.py", &[&checkpoint, &inputs]);
+    let relative = python["max_relative_diff"].as_f64().unwrap();
+    assert!(
+        relative <= FLOAT_NOISE,
+        "probe_critic.py's Q differs from the agent's by {relative} of the head's largest \
+         |Q| ({python})"
+    );
+    Some(relative)
 }
 
 /// `agent eval` (the real binary) of `run` through `address`, its `--json` report.

@@ -38,6 +38,22 @@ struct QCritics<'a> {
 }
 
 impl Learner {
+    /// The online Q critics' values of `actions` at `obs`, untracked: for reading a
+    /// trained learner's critics (`scripts/probe_critic.py` transcribes them, and
+    /// `agent/tests/python_policy.rs` checks that the two agree). `None` for a MO-V-MPO
+    /// learner, whose critics value states.
+    /// # Shapes
+    /// `obs [P, N, O]` (an ε-conditioned learner's preference features appended),
+    /// `actions [P, M, N, D] f32 | [P, M, N] i64 -> [P, M, N, C]`.
+    pub fn q_values(&self, obs: &Tensor, actions: &Tensor) -> Option<Tensor> {
+        let Critics::Q { online, .. } = &self.nets.critics else {
+            return None;
+        };
+        Some(tch::no_grad(|| {
+            online.forward_samples_members(obs, actions)
+        }))
+    }
+
     /// The online and target Q critics.
     fn q_critics(&self) -> QCritics<'_> {
         let Critics::Q { online, target, .. } = &self.nets.critics else {
