@@ -226,7 +226,7 @@ async fn a_state_independent_std_policy_in_pytorch_acts_and_returns_as_the_agent
 /// Relative to the head's scale, not to each Q: float32 rounding in the layers' sums
 /// follows the size of the values summed, and measured per Q (over max(1, |Q|)) seed
 /// 2's conditioned run differed by 5.7e-6 at a Q near 2.7 where the head reached 155,
-/// one float32 step at that scale (1.5e-5). Seeds 0-5 (2026-12-02, the four Gaussian
+/// one float32 step at that scale (1.5e-5). Seeds 0-5 (2026-12-02, the three Gaussian
 /// runs each): 8.1e-8 to 1.9e-7 of the head's scale. A transcription with ReLU for
 /// the heads' ELU failed by 0.056-0.087 (all three Gaussian runs).
 fn critics_agree(run: &Path) -> Option<f64> {
