@@ -1,11 +1,11 @@
 """The Python side of agent/tests/python_policy.rs's critic check: scripts/probe_critic.py's
 transcription of the Q critics against the agent's own values.
 
-    python_critic.py CHECKPOINT INPUTS
+    python_critic.py CHECKPOINT OBS ACTIONS Q
 
-INPUTS is a JSON file the test writes: `obs` [N, O] (an ε-conditioned learner's
-preference features appended), `actions` [M, N, D] and `q` [M, N, C], the agent's
-`Learner::q_values` of them. Prints JSON: `max_abs_diff` and `max_relative_diff` (each
+OBS, ACTIONS and Q are .npy files the test writes: observations [N, O] (an
+ε-conditioned learner's preference features appended), actions [M, N, D] and the
+agent's `Learner::q_values` of them [M, N, C]. Prints JSON: `max_abs_diff` and `max_relative_diff` (each
 difference over max(1, the largest |q| of its critic head), `head_scale`) between `q`
 and probe_critic's `Critic` on the same inputs, from CHECKPOINT's params.safetensors
 and state.json.
@@ -18,6 +18,7 @@ import json
 import pathlib
 import sys
 
+import numpy as np
 import torch
 from safetensors.torch import load_file
 
@@ -32,11 +33,10 @@ def _probe_critic():
 
 
 def main() -> None:
-    checkpoint, inputs = (pathlib.Path(a) for a in sys.argv[1:3])
+    checkpoint, *inputs = (pathlib.Path(a) for a in sys.argv[1:5])
     network = json.loads((checkpoint / "state.json").read_text())["config"]["network"]
     critic = _probe_critic().Critic(load_file(checkpoint / "params.safetensors"), network)
-    data = json.loads(inputs.read_text())
-    obs, actions, ours = (torch.tensor(data[k], dtype=torch.float32) for k in ("obs", "actions", "q"))
+    obs, actions, ours = (torch.from_numpy(np.load(path)) for path in inputs)
     with torch.no_grad():
         theirs = critic(obs, actions)
     if theirs.shape != ours.shape:
