@@ -4,9 +4,10 @@
     .venv/bin/python scripts/probe_critic.py RUN_OR_CHECKPOINT_DIR \
         [--epsilon objective_1=0.001] [--epsilon objective_1=1] [--steps 1000] [--samples 20]
 
-For an MO-Gymnasium task (`env.id = "mo:..."` in the run's config.toml) it rolls the
-deterministic policy out in-process for --steps steps (seed 1), then, at the first half
-of those states, prints per learned objective (critic head):
+For an MO-Gymnasium or gymnasium task (`env.id = "mo:..."` or `"gym:..."` in the run's
+config.toml; a gym: task's one objective is its reward) it rolls the deterministic
+policy out in-process for --steps steps (seed 1), then, at the first half of those
+states, prints per learned objective (critic head):
 
 - `Q(mu)`: the critic's mean Q at the policy's mean action, beside `G`: the realised
   discounted return-to-go from those states (the checkpoint's γ; each sees at least
@@ -117,11 +118,24 @@ def solved_temperature(q: torch.Tensor, epsilon: float) -> float:
     return math.exp((lo + hi) / 2)
 
 
+def make_env(env_id: str):
+    """The task of a run's `env.id` as env_server makes it: `mo:` through MO-Gymnasium,
+    `gym:` through gymnasium with its scalar reward as the one objective."""
+    kind, _, name = env_id.partition(":")
+    if kind == "mo":
+        import mo_gymnasium
+
+        return mo_gymnasium.make(name)
+    if kind == "gym":
+        import gymnasium
+
+        return gymnasium.wrappers.TransformReward(gymnasium.make(name), lambda r: np.array([r]))
+    raise SystemExit(f"env.id: expected an MO-Gymnasium (mo:...) or gymnasium (gym:...) task, got {env_id!r}")
+
+
 def rollout(policy, env_id: str, steps: int) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
     """Observations with the preference appended [T, O], mean actions [T, D], rewards [T, K]."""
-    import mo_gymnasium
-
-    env = mo_gymnasium.make(env_id)
+    env = make_env(env_id)
     obs, _ = env.reset(seed=1)
     states, means, rewards = [], [], []
     for _ in range(steps):
@@ -150,14 +164,12 @@ def probe(ckpt: pathlib.Path, preference: dict[str, float] | None, args: argpars
     state = json.loads((ckpt / "state.json").read_text())
     config, names = state["config"], state["dims"]["reward_names"]
     env_id = env_of(run_dir(ckpt) / "config.toml")
-    if not env_id.startswith("mo:"):
-        raise SystemExit(f"env.id: expected an MO-Gymnasium task (mo:...), got {env_id!r}")
     sources = {o["name"]: o.get("source", "learned") for o in config["objectives"]}
     if any(v != "learned" for v in sources.values()):
         raise SystemExit(f"learner.objectives: expected every source 'learned' (one critic head each), got {sources}")
     policy = load_policy(ckpt, preference)
     critic = Critic(load_file(ckpt / "params.safetensors"), config["network"])
-    states, means, rewards = rollout(policy, env_id[3:], args.steps)
+    states, means, rewards = rollout(policy, env_id, args.steps)
     half = max(1, len(states) // 2)
     gamma = config["mpo"]["discount"]
     togo = np.zeros_like(rewards)
