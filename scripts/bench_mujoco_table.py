@@ -2,7 +2,7 @@
 """The MuJoCo benchmark's table, stability check and curves, from its results file.
 
     python scripts/bench_mujoco_table.py [--results docs/benchmarks/mujoco-results.csv[,FILE..]]
-        [--session ID[,ID..]] [--tasks TASK[,TASK..]] [--plots DIR] [--ref-undiscounted TASK=X:Y]
+        [--session ID[:METHOD][,ID..]] [--tasks TASK[,TASK..]] [--plots DIR] [--ref-undiscounted TASK=X:Y]
         [--per-evaluation]
 
 One markdown row per task, session and method: the seeds' medians (range) of the final
@@ -22,6 +22,8 @@ prints, instead of the summary, every run's evaluations: a table per set of eval
 points, a row per task, seed and method (two-objective tasks: a row per hypervolume,
 discounted in thousands and undiscounted in millions), the final evaluation in bold; where
 the sessions read hold one task, seed and method twice, each of those rows names its session.
+A session given as ID:METHOD contributes that method's runs only: e.g. SAC's runs of a
+session whose MO-MPO runs used an earlier preset, beside the current preset's.
 """
 
 from __future__ import annotations
@@ -195,6 +197,26 @@ def draw(task: str, task_runs: dict[tuple, list[dict]], out: pathlib.Path) -> No
     print(f"wrote {out}")
 
 
+def sessions_wanted(spec: str) -> dict[str, set[str] | None]:
+    """--session's value as session -> the methods read from it (None: every method)."""
+    wanted: dict[str, set[str] | None] = {}
+    for entry in filter(None, spec.split(",")):
+        session, _, method = entry.partition(":")
+        if not method:
+            wanted[session] = None
+        elif session not in wanted or wanted[session] is not None:
+            wanted.setdefault(session, set()).add(method)
+    return wanted
+
+
+def kept(sessions: dict[str, set[str] | None], row: dict) -> bool:
+    """Whether --session keeps this row: no session named, or the row's session with its method."""
+    if not sessions:
+        return True
+    methods = sessions.get(row["session"], set())
+    return methods is None or row["method"] in methods
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
@@ -203,7 +225,11 @@ def main() -> None:
         help="results files (comma-separated), read as one: e.g. the peers' runs of the results file "
         "beside our lever runs of docs/benchmarks/mujoco-levers.csv",
     )
-    ap.add_argument("--session", default="", help="only these sessions' runs (comma-separated)")
+    ap.add_argument(
+        "--session",
+        default="",
+        help="only these sessions' runs (comma-separated); ID:METHOD takes that method's runs of ID only",
+    )
     ap.add_argument("--tasks", default="", help="only these tasks' runs (comma-separated)")
     ap.add_argument("--plots", default="", help="folder for the curves (none by default)")
     ap.add_argument("--per-evaluation", action="store_true", help="print every run's evaluations instead")
@@ -215,7 +241,7 @@ def main() -> None:
         help="recompute the undiscounted HV at this reference from the stored fronts",
     )
     args = ap.parse_args()
-    sessions = set(filter(None, args.session.split(",")))
+    sessions = sessions_wanted(args.session)
     tasks = set(filter(None, args.tasks.split(",")))
     if unknown := sorted(tasks - set(TASKS)):
         ap.error(f"--tasks: expected some of {', '.join(TASKS)}, got {', '.join(unknown)}")
@@ -223,7 +249,7 @@ def main() -> None:
         r
         for path in filter(None, args.results.split(","))
         for r in results.read(pathlib.Path(path))
-        if (not sessions or r["session"] in sessions) and (not tasks or r["task"] in tasks)
+        if kept(sessions, r) and (not tasks or r["task"] in tasks)
     ]
     for spec in args.ref_undiscounted:
         task, _, ref = spec.partition("=")

@@ -112,3 +112,17 @@ def test_per_evaluation_names_the_session_where_a_run_repeats(monkeypatch, capsy
     assert "| mo-halfcheetah, 0 | MO-MPO (`t`), HV disc. (k) | 10.0 | **15.0** | 2000 |" in out
     # CAPQL's seed 0 ran once: no session named.
     assert "| mo-halfcheetah, 0 | CAPQL, HV disc. (k) | 10.0 | **10.0** | 1000 |" in out
+
+
+def test_a_session_named_with_a_method_gives_that_methods_runs_only(monkeypatch, capsys, two_files):
+    peers, levers = two_files
+    # Ours in session "t" (15,000 at the end), beside the peer of session "s" alone.
+    results.append(levers, run_rows("MO-MPO", 0, [(20000, 0.0), (40000, 50.0)], 2000.0), "t")
+    both = f"{peers},{levers}"
+    out = table(monkeypatch, capsys, "--results", both, "--session", "t,s:CAPQL", "--per-evaluation")
+    assert "| mo-halfcheetah, 0 | MO-MPO, HV disc. (k) | 10.0 | **15.0** | 2000 |" in out
+    assert "| mo-halfcheetah, 0 | CAPQL, HV disc. (k) | 10.0 | **10.0** | 1000 |" in out
+    assert "**20.0**" not in out  # ours of session "s"
+    # A bare session id takes every method, whatever else names it.
+    out = table(monkeypatch, capsys, "--results", both, "--session", "s:CAPQL,s", "--per-evaluation")
+    assert "**20.0**" in out and "CAPQL, HV disc. (k)" in out
