@@ -199,9 +199,12 @@ def draw(task: str, task_runs: dict[tuple, list[dict]], out: pathlib.Path) -> No
 
 def sessions_wanted(spec: str) -> dict[str, set[str] | None]:
     """--session's value as session -> the methods read from it (None: every method)."""
+    methods = sorted({OURS, *PEER.values()})
     wanted: dict[str, set[str] | None] = {}
     for entry in filter(None, spec.split(",")):
-        session, _, method = entry.partition(":")
+        session, colon, method = entry.partition(":")
+        if not session or (colon and method not in methods):
+            raise ValueError(f"expected ID or ID:METHOD with METHOD one of {', '.join(methods)}, got '{entry}'")
         if not method:
             wanted[session] = None
         elif session not in wanted or wanted[session] is not None:
@@ -241,7 +244,10 @@ def main() -> None:
         help="recompute the undiscounted HV at this reference from the stored fronts",
     )
     args = ap.parse_args()
-    sessions = sessions_wanted(args.session)
+    try:
+        sessions = sessions_wanted(args.session)
+    except ValueError as e:
+        ap.error(f"--session: {e}")
     tasks = set(filter(None, args.tasks.split(",")))
     if unknown := sorted(tasks - set(TASKS)):
         ap.error(f"--tasks: expected some of {', '.join(TASKS)}, got {', '.join(unknown)}")

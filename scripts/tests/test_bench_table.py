@@ -126,3 +126,13 @@ def test_a_session_named_with_a_method_gives_that_methods_runs_only(monkeypatch,
     # A bare session id takes every method, whatever else names it.
     out = table(monkeypatch, capsys, "--results", both, "--session", "s:CAPQL,s", "--per-evaluation")
     assert "**20.0**" in out and "CAPQL, HV disc. (k)" in out
+
+
+@pytest.mark.parametrize("entry", ["s:SB3", ":SAC", "s:"])
+def test_a_session_entry_that_names_no_known_method_is_refused(monkeypatch, capsys, two_files, entry):
+    peers, _ = two_files
+    with pytest.raises(SystemExit):
+        table(monkeypatch, capsys, "--results", str(peers), "--session", entry)
+    err = capsys.readouterr().err
+    assert "--session: expected ID or ID:METHOD with METHOD one of CAPQL, MO-MPO, SAC" in err
+    assert f"got '{entry}'" in err
