@@ -205,10 +205,9 @@ def sessions_wanted(spec: str) -> dict[str, set[str] | None]:
         session, colon, method = entry.partition(":")
         if not session or (colon and method not in methods):
             raise ValueError(f"expected ID or ID:METHOD with METHOD one of {', '.join(methods)}, got '{entry}'")
-        if not method:
-            wanted[session] = None
-        elif session not in wanted or wanted[session] is not None:
-            wanted.setdefault(session, set()).add(method)
+        known = wanted.get(session, set())
+        # A bare ID reads every method, whatever other entries name for it.
+        wanted[session] = None if not method or known is None else known | {method}
     return wanted
 
 
