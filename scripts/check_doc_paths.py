@@ -66,8 +66,13 @@ def broken_links(md: Path, text: str) -> list[str]:
     return broken
 
 
+def markdown_pages() -> list[Path]:
+    """The site's pages and the Markdown files outside docs/ (CHANGELOG.md left out)."""
+    return sorted((ROOT / "docs").rglob("*.md")) + [ROOT / f for f in OUTSIDE_DOCS]
+
+
 def main() -> int:
-    pages = sorted((ROOT / "docs").rglob("*.md")) + [ROOT / f for f in OUTSIDE_DOCS]
+    pages = markdown_pages()
     problems = []
     for md in pages:
         text = md.read_text()
