@@ -80,9 +80,14 @@ def main() -> int:
         problems += [f"{name}: names {p}, which does not exist" for p in missing_paths(text)]
         if str(name) in OUTSIDE_DOCS:
             problems += [f"{name}: links to {t}, which does not exist" for t in broken_links(md, text)]
+    return report(problems, f"checked the paths named in {len(pages)} Markdown files: {len(problems)} missing")
+
+
+def report(problems: list[str], summary: str) -> int:
+    """Prints each problem and the summary line; the exit status: 1 if there were any."""
     for p in problems:
         print(p)
-    print(f"checked the paths named in {len(pages)} Markdown files: {len(problems)} missing")
+    print(summary)
     return 1 if problems else 0
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 import sys
 
-from check_doc_paths import ROOT, markdown_pages
+from check_doc_paths import ROOT, markdown_pages, report
 
 SEPARATOR = re.compile(r"\|(\s*:?-{3,}:?\s*\|)+")
 
@@ -60,10 +60,7 @@ def problems(text: str) -> list[str]:
 def main() -> int:
     pages = markdown_pages()
     found = [f"{md.relative_to(ROOT)}: {p}" for md in pages for p in problems(md.read_text())]
-    for p in found:
-        print(p)
-    print(f"checked the tables of {len(pages)} Markdown files: {len(found)} malformed")
-    return 1 if found else 0
+    return report(found, f"checked the tables of {len(pages)} Markdown files: {len(found)} malformed")
 
 
 if __name__ == "__main__":
