@@ -2,8 +2,8 @@
 
 A table whose second line is not a separator row (`|---|---|`) renders as lines of
 text with pipes in them, and a row with more or fewer cells than its header loses or
-pads cells; neither is a warning in MkDocs' strict build (scripts/docs.sh), and both
-have shipped (the benchmark page's summary table, December 2026). Checks the files
+pads cells; neither is a warning in MkDocs' strict build (scripts/docs.sh), and the
+first has shipped (the benchmark page's summary table, December 2026). Checks the files
 scripts/check_doc_paths.py checks. A pipe inside a code span or escaped (`\\|`) is
 not a cell boundary.
 
@@ -52,7 +52,9 @@ def problems(text: str) -> list[str]:
             continue
         want = cells(header)
         out += [
-            f"line {number}: {cells(row)} cells, its header has {want}" for number, row in rest if cells(row) != want
+            f"line {number}: a row of {cells(row)} cells under a header of {want}"
+            for number, row in rest
+            if cells(row) != want
         ]
     return out
 

@@ -21,7 +21,10 @@ def test_a_table_without_its_separator_row_is_found_at_its_first_line():
 
 def test_a_row_wider_or_narrower_than_its_header_is_found():
     text = "| a | b |\n|---|---|\n| 1 | 2 | 3 |\n| 1 |\n| 1 | 2 |\n"
-    assert check.problems(text) == ["line 3: 3 cells, its header has 2", "line 4: 1 cells, its header has 2"]
+    assert check.problems(text) == [
+        "line 3: a row of 3 cells under a header of 2",
+        "line 4: a row of 1 cells under a header of 2",
+    ]
 
 
 def test_pipes_in_fenced_code_are_not_tables():
