@@ -51,11 +51,8 @@ def problems(text: str) -> list[str]:
             out.append(f"line {first}: a table without a separator row (|---|) under its header")
             continue
         want = cells(header)
-        out += [
-            f"line {number}: a row of {cells(row)} cells under a header of {want}"
-            for number, row in rest
-            if cells(row) != want
-        ]
+        widths = [(number, cells(row)) for number, row in rest]
+        out += [f"line {n}: a row of {got} cells under a header of {want}" for n, got in widths if got != want]
     return out
 
 
