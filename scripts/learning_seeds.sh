@@ -14,21 +14,22 @@ set -uo pipefail
 cd "$(dirname "$0")/.."
 seeds=${1:-1 2 3 4 5}
 shift || true
-# package:test binary of every end-to-end learning test.
-tests=("integration-tests:learning" "integration-tests:main_job" "integration-tests:conditioned"
-  "integration-tests:onpolicy" "integration-tests:onpolicy_preferences" "agent:resume_continuity"
-  "agent:behaviour" "agent:vmpo_behaviour" "agent:scale_invariance" "agent:python_policy")
+# The test binary of every end-to-end learning test (names are unique in the workspace).
+tests=(learning main_job conditioned onpolicy onpolicy_preferences resume_continuity
+  behaviour vmpo_behaviour scale_invariance python_policy)
 if [[ $# -gt 0 ]]; then
   wanted=" $* "
-  tests=($(printf '%s\n' "${tests[@]}" | while IFS=: read -r p t; do [[ $wanted == *" $t "* ]] && echo "$p:$t"; done))
+  tests=($(printf '%s\n' "${tests[@]}" | while read -r t; do [[ $wanted == *" $t "* ]] && echo "$t"; done))
 fi
 scripts/setup.sh
 failed=0
-for entry in "${tests[@]}"; do
-  package=${entry%%:*}; test=${entry##*:}
-  cargo test --locked -q -p "$package" --test "$test" --no-run 2>/dev/null || { echo "$test: does not build" >&2; exit 1; }
+# --workspace, not -p PACKAGE: -p resolves the dependencies' features for one package,
+# which differ from the workspace's, and would compile tonic, tch and the rest again
+# beside the test command's build.
+for test in "${tests[@]}"; do
+  cargo test --locked -q --workspace --test "$test" --no-run 2>/dev/null || { echo "$test: does not build" >&2; exit 1; }
   for seed in $seeds; do
-    out=$(MO_MPO_TEST_SEED=$seed cargo test --locked -q -p "$package" --test "$test" -- --nocapture 2>&1)
+    out=$(MO_MPO_TEST_SEED=$seed cargo test --locked -q --workspace --test "$test" -- --nocapture 2>&1)
     status=$([[ $? -eq 0 ]] && echo passed || echo FAILED)
     [[ $status == FAILED ]] && failed=$((failed + 1))
     figures=$(grep -o 'learning-figures .*' <<<"$out" | sed 's/^learning-figures //' | paste -sd ';' -)

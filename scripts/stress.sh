@@ -14,11 +14,10 @@ tests=("$@")
 if [ ${#tests[@]} -eq 0 ]; then
   for f in tests/tests/*.rs; do tests+=("$(basename "$f" .rs)"); done
 fi
-packages=(-p integration-tests)
-for t in "${tests[@]}"; do
-  if [[ $t == *:* ]]; then packages+=(-p "${t%%:*}"); fi
-done
-cargo test --locked -q "${packages[@]}" --no-run
+# --workspace, not -p PACKAGE: -p resolves the dependencies' features for the packages
+# named, and would compile tonic, tch and the rest a second time beside the test
+# command's build. Test binary names are unique in the workspace.
+cargo test --locked -q --workspace --tests --no-run
 logs=stress-logs/$(date +%Y%m%d-%H%M%S)
 mkdir -p "$logs"
 failures=0
@@ -28,7 +27,7 @@ for i in $(seq 1 "$n"); do
     if [[ $t == *:* ]]; then package=${t%%:*} name=${t#*:}; fi
     log="$logs/$name-$i.log"
     started=$(date +%s)
-    if cargo test --locked -q -p "$package" --test "$name" >"$log" 2>&1; then
+    if cargo test --locked -q --workspace --test "$name" >"$log" 2>&1; then
       echo "round $i/$n  $package:$name  pass  $(($(date +%s) - started)) s"
     else
       failures=$((failures + 1))
