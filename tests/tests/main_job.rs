@@ -73,7 +73,8 @@ async fn the_quick_sweep_reaches_a_front_beyond_linear_weights_as_populations() 
     // treasures on edges of the front's convex hull. Issue 22's bar (nine treasures,
     // HV >= 390) held for seed 0 only: the grid was thinned to the staircase seed 0
     // showed, and other seeds' staircases shift (float kernels differ between CPUs,
-    // so another machine's seed 0 is another staircase).
+    // so another machine's seed 0 may be another staircase; an Intel Xeon's was this
+    // AMD EPYC's, and so were seeds 1-5's figures below, on 2026-12-07).
     // The bars held for seeds 1-5 (MO_MPO_TEST_SEED, scripts/learning_seeds.sh),
     // treasures reached and hypervolume:
     // 0: 9, 394.0; 1: 6, 371.2; 2: 6, 368.7; 3: 7, 369.5; 4: 7, 373.7;
