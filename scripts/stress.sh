@@ -2,8 +2,9 @@
 # Runs end-to-end test binaries N times and reports every failure: a flake shows as a
 # FAIL line with its log. Usage:
 #   scripts/stress.sh N [TEST ...]
-# TEST is a test binary of the integration-tests crate (tests/tests/NAME.rs), or
-# PACKAGE:NAME for another crate's (agent:ray); default: every integration-tests binary.
+# TEST is the name of a test binary of any workspace crate (tests/tests/NAME.rs,
+# agent/tests/NAME.rs); PACKAGE:NAME (agent:ray) is accepted too and only labels the
+# report. Default: every integration-tests binary.
 # Each binary runs its tests side by side, as `cargo test` does. Logs go to
 # stress-logs/<time>/<test>-<i>.log. Run it beside a training run to test under load.
 set -euo pipefail
