@@ -15,9 +15,7 @@ tests=("$@")
 if [ ${#tests[@]} -eq 0 ]; then
   for f in tests/tests/*.rs; do tests+=("$(basename "$f" .rs)"); done
 fi
-# --workspace, not -p PACKAGE: -p resolves the dependencies' features for the packages
-# named, and would compile tonic, tch and the rest a second time beside the test
-# command's build. Test binary names are unique in the workspace.
+# --workspace, not -p PACKAGE, for the reason learning_seeds.sh gives.
 cargo test --locked -q --workspace --tests --no-run
 logs=stress-logs/$(date +%Y%m%d-%H%M%S)
 mkdir -p "$logs"
