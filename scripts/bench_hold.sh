@@ -50,8 +50,8 @@ export MUJOCO_GL=${MUJOCO_GL:-disable}
 mkdir -p "$out"
 set -m # each run a process group of its own, so that Ctrl-C stops the runs too
 pids=()
-trap 'for p in "${pids[@]}"; do kill -- -"$p" 2>/dev/null || true; done; kill ${server_pid:-} 2>/dev/null; wait' EXIT
 source scripts/lib/env_server.sh
+trap 'for p in "${pids[@]}"; do kill -- -"$p" 2>/dev/null || true; done; stop_env_server; wait' EXIT
 start_env_server "$out/server.log"
 
 # One seed: train, then the final policy's E-episode evaluation (eval_final.json in the run).

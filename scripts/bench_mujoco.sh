@@ -14,8 +14,9 @@
 #     --eval-every N    env steps between evaluations (default 10000 / 20000; 0: final only)
 #     --jobs N          runs at once (default 1)
 #     --threads N       torch / libtorch threads per run (default 1)
-#     --config TASK=FILE  our run's config for TASK (default configs/mompo/locomotion.toml,
-#                       two-objective tasks configs/mompo/locomotion-conditioned.toml)
+#     --config TASK=FILE  our run's config for TASK (default configs/mompo/locomotion.toml;
+#                       mo-halfcheetah-v5 configs/mompo/locomotion-conditioned.toml,
+#                       mo-hopper-2obj-v5 configs/mompo/mo-hopper-conditioned.toml)
 #     --set [TASK:]PATH=VALUE  extra `agent train --set` for our runs (of TASK only)
 #     --capql-eval W,E  CAPQL's evaluation weights and episodes per weight (default 11,4)
 #     --results FILE    default docs/benchmarks/mujoco-results.csv
@@ -54,7 +55,11 @@ for task in ${tasks//,/ }; do
     HalfCheetah-v5 | Hopper-v5 | mo-halfcheetah-v5 | mo-hopper-2obj-v5) ;;
     *) echo "--tasks: expected HalfCheetah-v5, Hopper-v5, mo-halfcheetah-v5 or mo-hopper-2obj-v5, got '$task'" >&2; exit 2 ;;
   esac
-  two_objective "$task" && default=configs/mompo/locomotion-conditioned.toml || default=configs/mompo/locomotion.toml
+  case $task in
+    mo-halfcheetah-v5) default=configs/mompo/locomotion-conditioned.toml ;;
+    mo-hopper-2obj-v5) default=configs/mompo/mo-hopper-conditioned.toml ;;
+    *) default=configs/mompo/locomotion.toml ;;
+  esac
   config[$task]=${config[$task]:-$default}
   if [[ $sides == *ours* && ! -f ${config[$task]} ]]; then
     echo "--config: no config file '${config[$task]}' for $task (give one with --config $task=FILE)" >&2; exit 2
@@ -69,11 +74,11 @@ export MUJOCO_GL=${MUJOCO_GL:-disable}
 # its runs too (a script's background jobs would otherwise ignore Ctrl-C and go on).
 set -m
 pids=()
-trap 'for p in "${pids[@]}"; do kill -- -"$p" 2>/dev/null || true; done; kill ${server_pid:-} 2>/dev/null; wait' EXIT
+source scripts/lib/env_server.sh
+trap 'for p in "${pids[@]}"; do kill -- -"$p" 2>/dev/null || true; done; stop_env_server; wait' EXIT
 if [[ $sides == *ours* ]]; then
   scripts/setup.sh
   [[ -n ${AGENT:-} ]] || cargo build --locked --release -p agent --bin agent
-  source scripts/lib/env_server.sh
   start_env_server "$out/server-$$.log" # one per invocation: two invocations may share a session
 fi
 [[ $sides == *peers* ]] && scripts/peers/setup.sh

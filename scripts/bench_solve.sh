@@ -29,7 +29,7 @@ export MUJOCO_GL=${MUJOCO_GL:-disable}
 work=$(mktemp -d)
 server_log=$work/server.log
 source scripts/lib/env_server.sh
-trap 'kill ${server_pid:-} 2>/dev/null; wait ${server_pid:-} 2>/dev/null; rm -rf "$work"' EXIT
+trap 'stop_env_server; rm -rf "$work"' EXIT
 start_env_server "$server_log"
 echo "==> $n runs of $config ${args[*]:-} against $address"
 for seed in $(seq 0 $((n - 1))); do

@@ -72,7 +72,12 @@ sweep file (`agent sweep --config`, `configs/sweeps/*.toml`): its TOML type, its
 (\"required\" when it has none) and its meaning. Where a meaning names a table (Table 2,
 Table 5, ...), the default is that table's value in Abdolmaleki et al. (2020),
 appendix A, and presets in `configs/` override it as their comments say. Every table is
-strict: an unknown key is an error that names it. `--set dotted.path=value` overrides
+strict: an unknown key is an error that names it. A run config may start from another:
+`extends = \"other.toml\"` (top level, relative to the file) reads that file first and this
+one's keys over it, tables merged key by key and any other value (an array, an array of
+tables) replaced whole; the run's stored `config.toml` holds the result
+(`configs/mompo/mo-hopper-conditioned.toml` extends `locomotion-conditioned.toml`).
+`--set dotted.path=value` overrides
 any field from the command line (array elements by index: `learner.objectives.1.epsilon`);
 with `train --resume`, only the fields a running run may change (the budget, log and
 checkpoint periods, `run.checkpoint_replay`, `run.eval_episodes`, servers, deadlines,

@@ -26,6 +26,7 @@ use crate::env::deadline::DeadlineConfig;
 use crate::env::discovery::{DiscoveryError, FORMS, ServerSource};
 use crate::report::front::FrontConfig;
 
+mod extends;
 mod overrides;
 
 pub use overrides::RESUMABLE_FIELDS;
@@ -186,25 +187,18 @@ impl TrainConfig {
         Self::load_with(path, &[])
     }
 
-    /// Read a TOML file, apply `overrides` (`dotted.path=toml_value`, e.g.
+    /// Read a TOML file (with the file its `extends` names, `extends.rs`), apply
+    /// `overrides` (`dotted.path=toml_value`, e.g.
     /// `learner.mpo.batch_size=64` or `learner.objectives.1.epsilon=0.0`, where a
     /// number indexes an array), then validate.
     pub fn load_with(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Invalid {
-            field: "config file".into(),
-            requirement: "readable".into(),
-            got: format!("{}: {e}", path.display()),
-        })?;
-        let schema_error = |e: toml::de::Error| ConfigError::Invalid {
-            field: format!("config file {}", path.display()),
-            requirement: "valid TOML matching the schema".into(),
-            got: e.to_string(),
-        };
-        let mut table: toml::Table = toml::from_str(&text).map_err(schema_error)?;
+        let mut table = extends::read_table(path)?;
         for o in overrides {
             apply_override(&mut table, o)?;
         }
-        let mut cfg: TrainConfig = table.try_into().map_err(schema_error)?;
+        let mut cfg: TrainConfig = table
+            .try_into()
+            .map_err(|e| extends::schema_error(path, e))?;
         cfg.learner.seed = cfg.seed;
         cfg.validate()?;
         Ok(cfg)
