@@ -28,7 +28,7 @@
 //! (`critics_agree`) held on seeds 0-5 (2026-12-02, `MO_MPO_TEST_SEED=S cargo test
 //! --workspace --test python_policy`, the three Gaussian runs each): Q differed by
 //! 8.1e-8 to 1.9e-7 of the head's largest |Q|. Those ran on an AMD EPYC; on an Intel
-//! Xeon both bars held again for seeds 0-5 (2026-12-07, MO_MPO_TEST_SEED,
+//! Xeon both bars held for seeds 0-5 again (2026-12-07, MO_MPO_TEST_SEED,
 //! `scripts/learning_seeds.sh "0 1 2 3 4 5" python_policy`): actions
 //! differed by at most 8.6e-7, returns by 9.6e-4 absolute and 1.1e-6 relative, and Q by
 //! 8.1e-8 to 2.1e-7 of the head's largest |Q|.

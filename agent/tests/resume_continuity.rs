@@ -256,7 +256,7 @@ async fn a_pendulum_run_killed_five_times_learns_as_an_uninterrupted_one() {
     // 5: 6,400 / -217.8 against 5,600 5,600 4,800 / -218.6 -184.3 -125.7.
     // (175-214 s per seed while other runs shared the machine.) Those ran on an AMD
     // EPYC; on an Intel Xeon (2026-12-07, 112-125 s per seed, alone) the pendulum runs
-    // take other paths, and every bar held again for seeds 0-5 (MO_MPO_TEST_SEED,
+    // take other paths, and every bar held for seeds 0-5 again (MO_MPO_TEST_SEED,
     // scripts/learning_seeds.sh "0 1 2 3 4 5" resume_continuity):
     // 0: 11,200 / -152.5 against 4,800 5,600 8,000 / -153.8 -140.5 -166.3;
     // 1: 6,400 / -139.3 against 5,600 8,000 5,200 / -140.5 -166.3 -181.4;
