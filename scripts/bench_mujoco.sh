@@ -82,6 +82,10 @@ if [[ $sides == *ours* ]]; then
   start_env_server "$out/server-$$.log" # one per invocation: two invocations may share a session
 fi
 [[ $sides == *peers* ]] && scripts/peers/setup.sh
+# Every row names the commit the session started from (the binary built above), not the
+# checkout's commit when the row is written, hours later (scripts/peers/results.py).
+BENCH_COMMIT=$(cd scripts && python3 -c 'from peers import results; print(results.commit())')
+export BENCH_COMMIT
 
 # One run: its command's output goes to $out/SIDE-TASK-SEED.log. (These run as an `if`
 # condition, where set -e does not act: every step checks its own status.)

@@ -126,7 +126,12 @@ def machine() -> str:
 
 
 def commit() -> str:
-    """The checkout's commit, `+dirty` when tracked files differ from it."""
+    """The checkout's commit, `+dirty` when tracked files differ from it; or `BENCH_COMMIT`
+    when the caller set it: scripts/bench_mujoco.sh takes the commit once, as it builds,
+    so that a commit made while its runs train does not label code they did not run."""
+    pinned = os.environ.get("BENCH_COMMIT", "")
+    if pinned:
+        return pinned
     root = pathlib.Path(__file__).resolve().parents[2]
 
     def git(*args: str) -> str:

@@ -127,3 +127,18 @@ def test_a_single_objective_run_stopped_or_finished(tmp_path: pathlib.Path):
     ]
     with pytest.raises(SystemExit, match="--objective: expected one of the run's objectives"):
         collector.collect(run, "HalfCheetah-v5", 0, "task", "")
+
+
+def test_rows_name_the_commit_the_session_pinned_else_the_checkouts(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+):
+    row = results.row("HalfCheetah-v5", "MO-MPO", 0, "final", 100, return_=1.0)
+    monkeypatch.delenv("BENCH_COMMIT", raising=False)
+    checkout = results.commit()  # a 12-digit hash in a clone; "unknown" outside one
+    assert checkout and checkout != "0123456789ab"
+    monkeypatch.setenv("BENCH_COMMIT", "0123456789ab")
+    path = tmp_path / "results.csv"
+    results.append(path, [row], "s")
+    monkeypatch.delenv("BENCH_COMMIT")
+    results.append(path, [row], "s")
+    assert [r["commit"] for r in results.read(path)] == ["0123456789ab", checkout]
