@@ -82,8 +82,8 @@ if [[ $sides == *ours* ]]; then
   start_env_server "$out/server-$$.log" # one per invocation: two invocations may share a session
 fi
 [[ $sides == *peers* ]] && scripts/peers/setup.sh
-# Every row names the commit the session started from (the binary built above), not the
-# checkout's commit when the row is written, hours later (scripts/peers/results.py).
+# Every row names the checkout's commit as the session starts (the code its runs use),
+# not the commit when the row is written, hours later (scripts/peers/results.py).
 BENCH_COMMIT=$(cd scripts && python3 -c 'from peers import results; print(results.commit())')
 export BENCH_COMMIT
 
