@@ -12,6 +12,8 @@
 #     --sides ours,peers  default both
 #     --steps N         env steps per run (default 100000 single-objective, 200000 two)
 #     --eval-every N    env steps between evaluations (default 10000 / 20000; 0: final only)
+#     --eval-episodes N  episodes per evaluation on single-objective tasks, both sides
+#                       (default 10; two-objective tasks take --capql-eval's E on both)
 #     --jobs N          runs at once (default 1)
 #     --threads N       torch / libtorch threads per run (default 1)
 #     --config TASK=FILE  our run's config for TASK (default configs/mompo/locomotion.toml;
@@ -29,7 +31,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 tasks=HalfCheetah-v5,Hopper-v5,mo-halfcheetah-v5,mo-hopper-2obj-v5
-seeds=0,1,2 sides=ours,peers steps="" eval_every="" jobs=1 threads=1 capql_eval=11,4
+seeds=0,1,2 sides=ours,peers steps="" eval_every="" eval_episodes=10 jobs=1 threads=1 capql_eval=11,4
 results=docs/benchmarks/mujoco-results.csv session=$(date -u +%Y%m%dT%H%M%SZ)
 declare -A config=()
 sets=()
@@ -37,7 +39,8 @@ while [[ $# -gt 0 ]]; do
   [[ $# -ge 2 ]] || { echo "$1: expected a value after it" >&2; exit 2; }
   case $1 in
     --tasks) tasks=$2 ;; --seeds) seeds=$2 ;; --sides) sides=$2 ;; --steps) steps=$2 ;;
-    --eval-every) eval_every=$2 ;; --jobs) jobs=$2 ;; --threads) threads=$2 ;;
+    --eval-every) eval_every=$2 ;; --eval-episodes) eval_episodes=$2 ;;
+    --jobs) jobs=$2 ;; --threads) threads=$2 ;;
     --capql-eval) capql_eval=$2 ;; --results) results=$2 ;; --session) session=$2 ;;
     --config) [[ $2 == *=* ]] || { echo "--config: expected TASK=FILE, got '$2'" >&2; exit 2; }
       config[${2%%=*}]=${2#*=} ;;
@@ -50,6 +53,7 @@ two_objective() { [[ $1 == mo-* ]]; }
 for side in ${sides//,/ }; do
   [[ $side == ours || $side == peers ]] || { echo "--sides: expected ours and/or peers, got '$side'" >&2; exit 2; }
 done
+[[ $eval_episodes =~ ^[1-9][0-9]*$ ]] || { echo "--eval-episodes: expected a positive integer, got '$eval_episodes'" >&2; exit 2; }
 for task in ${tasks//,/ }; do
   case $task in
     HalfCheetah-v5 | Hopper-v5 | mo-halfcheetah-v5 | mo-hopper-2obj-v5) ;;
@@ -96,9 +100,11 @@ run_ours() {
     if [[ ${s%%=*} == *:* ]]; then [[ ${s%%:*} == "$task" ]] && overrides+=(--set "${s#*:}"); else overrides+=(--set "$s"); fi
   done
   local runs=$out/runs/$task-$seed
+  # The evaluation's settings go into the row's settings, as the peers' rows say theirs.
+  overrides=(--set "run.eval_episodes=$episodes" "${overrides[@]}")
   if [[ $every -gt 0 ]]; then overrides=(--set "run.eval_period=$every" "${overrides[@]}"); fi
   "${AGENT:-target/release/agent}" train --config "${config[$task]}" --server "$address" --set "seed=$seed" \
-    --set "env.id=\"$family:$task\"" --set "run.total_env_steps=$n" --set "run.eval_episodes=$episodes" \
+    --set "env.id=\"$family:$task\"" --set "run.total_env_steps=$n" \
     --set "learner.num_threads=$threads" --set "run.runs_dir=\"$runs\"" "${overrides[@]}" || return 1
   local run
   run=$(ls -d "$runs"/*/ | tail -1) || return 1
@@ -106,16 +112,16 @@ run_ours() {
     --results "$results" --session "$session" --settings "${config[$task]} ${overrides[*]}"
 }
 run_peers() {
-  local task=$1 seed=$2 n=$3 every=$4 common
+  local task=$1 seed=$2 n=$3 every=$4 episodes=$5 common
   common=(--task "$task" --seed "$seed" --steps "$n" --eval-every "$every" --threads "$threads" --results "$results" --session "$session")
   if two_objective "$task"; then
-    .venv-peers/bin/python scripts/peers/capql.py "${common[@]}" --eval-weights "${capql_eval%,*}" --eval-episodes "${capql_eval#*,}"
+    .venv-peers/bin/python scripts/peers/capql.py "${common[@]}" --eval-weights "${capql_eval%,*}" --eval-episodes "$episodes"
   else
-    .venv-peers/bin/python scripts/peers/sac.py "${common[@]}"
+    .venv-peers/bin/python scripts/peers/sac.py "${common[@]}" --eval-episodes "$episodes"
   fi
 }
 job() {
-  local side=$1 task=$2 seed=$3 n every episodes=10 log
+  local side=$1 task=$2 seed=$3 n every episodes=$eval_episodes log
   two_objective "$task" && { n=${steps:-200000}; every=${eval_every:-20000}; episodes=${capql_eval#*,}; } \
     || { n=${steps:-100000}; every=${eval_every:-10000}; }
   log=$out/$side-$task-$seed.log
