@@ -17,8 +17,9 @@ archived checkpoint at or before it, averages every `policy/*` tensor over it an
 W - 1 before it (the rest of the learner is that checkpoint's), writes the result as a
 checkpoint of ARCHIVE/RUN_wW/ and evaluates it with `agent eval --episodes N` (the
 run's own evaluation seeds: the first 10 episodes are those of its `eval.csv`). It
-prints one CSV row per run, point and window, then per run and window the series and
-whether it holds by the benchmark's check (`bench_mujoco_table.unstable`).
+prints one CSV row per run, point and window (stdout), then per run and window the
+series and whether it holds by the benchmark's check (`bench_mujoco_table.unstable`;
+stderr).
 The training runs themselves are unchanged: this evaluates copies of their policies.
 """
 
@@ -81,7 +82,10 @@ def window_at(ckpts: list[tuple[int, pathlib.Path]], point: int, window: int) ->
 def keep(args: argparse.Namespace) -> None:
     into = pathlib.Path(args.into)
     while True:
+        # Whether the runs had finished is read before the copies, so that the last pass
+        # copies what they wrote before their summary.json.
         runs = {p.parent.parent for p in pathlib.Path(args.runs_dir).glob("**/checkpoints/step_*")}
+        finished = sum((r / "summary.json").exists() for r in runs) >= args.runs
         for step in pathlib.Path(args.runs_dir).glob("**/checkpoints/step_*"):
             out = into / step.parent.parent.name / "checkpoints" / step.name
             if STEP.fullmatch(step.name) and not (out / "params.safetensors").exists():
@@ -93,9 +97,27 @@ def keep(args: argparse.Namespace) -> None:
                 except (FileNotFoundError, shutil.Error):
                     # Pruned by its run while being copied (it keeps two): the next is kept.
                     shutil.rmtree(tmp, ignore_errors=True)
-        if sum((r / "summary.json").exists() for r in runs) >= args.runs:
+        if finished:
             return
         time.sleep(args.poll)
+
+
+def evaluated(args: argparse.Namespace, checkpoint: pathlib.Path) -> tuple[float, list[str]]:
+    """`agent eval` of one checkpoint: the mean return and each episode's length."""
+    report = checkpoint / "probe-eval.json"
+    cmd = [args.agent, "eval", "--checkpoint", str(checkpoint), "--episodes", str(args.episodes)]
+    done = subprocess.run([*cmd, "--json", str(report)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if done.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed (exit {done.returncode}):\n{done.stderr[-2000:]}")
+    r = json.loads(report.read_text())
+    return r["mean_return"][0], [str(e["length"]) for e in r["episodes"]]
+
+
+def positive(text: str) -> int:
+    """argparse type: a positive integer (argparse names the option in its error)."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
+    return int(text)
 
 
 def evaluate(args: argparse.Namespace) -> None:
@@ -117,30 +139,14 @@ def evaluate(args: argparse.Namespace) -> None:
                 shutil.copytree(group[-1], dest, dirs_exist_ok=True)
                 shutil.copy(run / "config.toml", dest.parent.parent / "config.toml")
                 save_file(averaged(group), str(dest / "params.safetensors"))
-                report = dest / "probe-eval.json"
-                subprocess.run(
-                    [
-                        args.agent,
-                        "eval",
-                        "--checkpoint",
-                        str(dest),
-                        "--episodes",
-                        str(args.episodes),
-                        "--json",
-                        str(report),
-                    ],
-                    check=True,
-                    stdout=subprocess.DEVNULL,
-                )
-                r = json.loads(report.read_text())
-                mean = r["mean_return"][0]
-                out.writerow([run.name, point, w, f"{mean:.1f}", "/".join(str(e["length"]) for e in r["episodes"])])
+                mean, lengths = evaluated(args, dest)
+                out.writerow([run.name, point, w, f"{mean:.1f}", "/".join(lengths)])
                 sys.stdout.flush()
                 series.setdefault((run.name, w), []).append({"task": "", "env_steps": point, "return": mean})
     for (run, w), rows in sorted(series.items()):
         fell = unstable(rows)
         values = " ".join(f"{r['return']:.0f}" for r in rows)
-        print(f"# {run} W={w}: {values}; {'holds' if not fell else 'does not hold: ' + fell}")
+        print(f"{run} W={w}: {values}; {'holds' if not fell else 'does not hold: ' + fell}", file=sys.stderr)
 
 
 def main() -> None:
@@ -149,13 +155,13 @@ def main() -> None:
     k = sub.add_parser("keep", help="copy every checkpoint the runs under RUNS_DIR write")
     k.add_argument("runs_dir")
     k.add_argument("--into", required=True, help="the archive folder")
-    k.add_argument("--runs", type=int, default=1, help="stop once this many runs have finished")
+    k.add_argument("--runs", type=positive, default=1, help="stop once this many runs have finished")
     k.add_argument("--poll", type=float, default=3.0, help="seconds between looks")
     e = sub.add_parser("evaluate", help="evaluate the averaged policies of an archive")
     e.add_argument("archive")
     e.add_argument("--windows", default="1,3,5,10", help="checkpoints averaged, comma-separated")
-    e.add_argument("--episodes", type=int, default=20)
-    e.add_argument("--every", type=int, default=10000, help="env steps between evaluation points")
+    e.add_argument("--episodes", type=positive, default=20)
+    e.add_argument("--every", type=positive, default=10000, help="env steps between evaluation points")
     e.add_argument("--agent", default="target/release/agent")
     args = parser.parse_args()
     keep(args) if args.command == "keep" else evaluate(args)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import subprocess
+import sys
 
 import numpy as np
 import probe_averaged_policy as probe
@@ -65,3 +67,29 @@ def test_keep_copies_every_checkpoint_and_the_config_until_the_runs_finish(tmp_p
 def test_bad_windows_are_refused_with_what_was_expected_and_what_came(text):
     with pytest.raises(SystemExit, match=f"--windows: expected positive integers separated by commas, got '{text}'"):
         probe.positive_ints("--windows", text)
+
+
+SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "probe_averaged_policy.py"
+
+
+@pytest.mark.parametrize("option", ["--every", "--episodes"])
+def test_a_count_that_is_not_positive_is_refused_by_name(tmp_path, option):
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), "evaluate", str(tmp_path), option, "0"], capture_output=True, text=True
+    )
+    assert done.returncode == 2
+    assert f"argument {option}: expected a positive integer, got '0'" in done.stderr
+
+
+def test_a_failed_evaluation_stops_the_probe_with_the_command_that_failed(tmp_path):
+    run = tmp_path / "run"
+    checkpoint(run, 1000, 10000, [1], [1])
+    (run / "config.toml").write_text("seed = 0\n")
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), "evaluate", str(tmp_path), "--windows", "1", "--agent", "false"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 1
+    assert "false eval --checkpoint" in done.stderr
+    assert "failed (exit 1)" in done.stderr
