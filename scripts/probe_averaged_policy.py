@@ -82,8 +82,9 @@ def window_at(ckpts: list[tuple[int, pathlib.Path]], point: int, window: int) ->
 def keep(args: argparse.Namespace) -> None:
     into = pathlib.Path(args.into)
     while True:
-        # Whether the runs had finished is read before the copies, so that the last pass
-        # copies what they wrote before their summary.json.
+        # Whether the runs had finished is read before the copies' own listing, so that
+        # the last pass copies what they wrote before their summary.json (one listing
+        # for both would miss a final checkpoint written between it and the summary).
         runs = {p.parent.parent for p in pathlib.Path(args.runs_dir).glob("**/checkpoints/step_*")}
         finished = sum((r / "summary.json").exists() for r in runs) >= args.runs
         for step in pathlib.Path(args.runs_dir).glob("**/checkpoints/step_*"):
